@@ -1,0 +1,1 @@
+//! End-to-end tests across Glint crates live in `tests/`; this library is empty on purpose.
