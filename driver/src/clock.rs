@@ -20,6 +20,10 @@ const REORDER_TOLERANCE_US: u64 = 100_000;
 const OFFSET_WINDOW_NS: u64 = 10 * NS_PER_S;
 /// A receive-time offset that moves by more than this is a re-synchronisation (reported).
 const RESYNC_THRESHOLD_NS: u64 = NS_PER_S;
+/// The applied offset moves toward the estimate by at most 1/100 of the device time elapsed:
+/// fast enough to shed a first packet's delay within a second, slow enough (13 µs per packet)
+/// that firings of consecutive packets (20 µs apart at the seam) never swap order.
+const OFFSET_SLEW_DIVISOR: i128 = 100;
 /// Counter advances longer than this (10 s) are checked against the receive time.
 const JUMP_CHECK_US: u64 = 10_000_000;
 
@@ -61,6 +65,8 @@ pub struct Clock {
     /// Receive-time offset: Unix ns − unwrapped counter ns, minimum over this and the previous
     /// window.
     offset: Option<i128>,
+    /// Device time at which the applied offset was last updated, ns.
+    offset_device_ns: i128,
     window_min: i128,
     previous_window_min: i128,
     window_start_ns: u64,
@@ -84,6 +90,7 @@ impl Clock {
             last_receive_ns: 0,
             hours: 0,
             offset: None,
+            offset_device_ns: 0,
             window_min: i128::MAX,
             previous_window_min: i128::MAX,
             window_start_ns: 0,
@@ -203,25 +210,16 @@ impl Clock {
 
     fn track_offset(&mut self, device_ns: i128, receive_ns: u64) {
         let sample = i128::from(receive_ns) - device_ns;
-        match self.offset {
-            None => {
-                self.offset = Some(sample);
-                self.window_min = sample;
-                self.previous_window_min = sample;
-                self.window_start_ns = receive_ns;
-                return;
-            }
-            Some(current) if (sample - current).unsigned_abs() > u128::from(RESYNC_THRESHOLD_NS) => {
-                // Delays do not last a second: the clocks moved apart (host clock step, sensor
-                // reset). Start over from this packet.
-                self.stats.resyncs += 1;
-                self.offset = Some(sample);
-                self.window_min = sample;
-                self.previous_window_min = sample;
-                self.window_start_ns = receive_ns;
-                return;
-            }
-            Some(_) => {}
+        let Some(applied) = self.offset else {
+            self.restart_offset(sample, device_ns, receive_ns);
+            return;
+        };
+        if (sample - applied).unsigned_abs() > u128::from(RESYNC_THRESHOLD_NS) {
+            // Delays do not last a second: the clocks moved apart (host clock step, sensor
+            // reset). Start over from this packet.
+            self.stats.resyncs += 1;
+            self.restart_offset(sample, device_ns, receive_ns);
+            return;
         }
         if receive_ns.saturating_sub(self.window_start_ns) >= OFFSET_WINDOW_NS {
             self.previous_window_min = self.window_min;
@@ -230,7 +228,20 @@ impl Clock {
         } else {
             self.window_min = self.window_min.min(sample);
         }
-        self.offset = Some(self.window_min.min(self.previous_window_min));
+        let target = self.window_min.min(self.previous_window_min);
+        // Slew, never step: a step would move this packet's firings before the last packet's.
+        let elapsed = (device_ns - self.offset_device_ns).max(0);
+        let slew = elapsed / OFFSET_SLEW_DIVISOR;
+        self.offset = Some(applied + (target - applied).clamp(-slew, slew));
+        self.offset_device_ns = self.offset_device_ns.max(device_ns);
+    }
+
+    fn restart_offset(&mut self, sample: i128, device_ns: i128, receive_ns: u64) {
+        self.offset = Some(sample);
+        self.offset_device_ns = device_ns;
+        self.window_min = sample;
+        self.previous_window_min = sample;
+        self.window_start_ns = receive_ns;
     }
 }
 
@@ -246,10 +257,17 @@ mod tests {
         // Counter at 1234.5 s past some arbitrary power-on; host says 1_700_000_000 s.
         let base_recv = 1_700_000_000 * NS_PER_S;
         let t0 = c.packet_time(1_234_500_000, base_recv + 300_000);
-        let t1 = c.packet_time(1_234_501_327, base_recv + 1_327_000 + 100_000);
-        // Second packet arrived with less delay: offset moves to it, and spacing is the counter's.
-        assert_eq!(t1 - c.packet_time(1_234_500_000, base_recv + 500_000), 1_327_000);
-        assert!(t0 >= t1 - 1_327_000);
+        assert_eq!(t0, base_recv + 300_000);
+        // Later packets arrive with only 100 µs delay: the offset slews to them (1 % of the
+        // elapsed time), so times stay in order and converge.
+        let mut last = t0;
+        for i in 1..2000u64 {
+            let counter = 1_234_500_000 + (i * 1327) as u32;
+            let t = c.packet_time(counter, base_recv + i * 1_327_000 + 100_000);
+            assert!(t > last + 1_300_000, "packet {i}: {t} after {last}");
+            last = t;
+        }
+        assert_eq!(last, base_recv + 1999 * 1_327_000 + 100_000);
         assert_eq!(c.source(), TimeSource::ReceiveTime);
     }
 

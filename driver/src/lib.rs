@@ -19,9 +19,15 @@ pub mod decode;
 pub mod model;
 pub mod nmea;
 pub mod pcap;
+pub mod source;
+pub mod stream;
 pub mod sweep;
+pub mod udp;
 pub mod wire;
 
 pub use decode::{Decoder, Point, ReturnKind};
 pub use model::{Detection, Model};
+pub use source::{PacketKind, PcapSource, Ports, SensorPayload};
+pub use stream::{SensorStream, StreamConfig, StreamError, StreamStats};
+pub use sweep::{Sweep, SweepConfig, SweepRecycler};
 pub use wire::{DataPacket, PacketError, PositionPacket, ReturnMode};

@@ -141,6 +141,11 @@ impl CaptureReader {
         })
     }
 
+    /// The payload of the datagram last returned by [`Self::next`].
+    pub fn payload(&self) -> &[u8] {
+        &self.payload
+    }
+
     /// Counts so far.
     pub fn stats(&self) -> CaptureStats {
         self.stats

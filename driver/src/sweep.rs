@@ -69,6 +69,7 @@ impl Default for SweepConfig {
 const MAX_SWEEP_NS: u64 = 250_000_000;
 /// Buffers kept for reuse.
 const POOL_SIZE: usize = 16;
+const CENTIDEG_PER_RAD: f32 = 18_000.0 / std::f32::consts::PI;
 
 /// Assembles decoded packets into sweeps.
 #[derive(Debug)]
@@ -223,12 +224,26 @@ struct Cutter<'a> {
 
 impl Cutter<'_> {
     fn firing(&mut self, f: Firing<'_>) {
-        let relative = (f.azimuth_centideg - self.cut).rem_euclid(AZIMUTH_LIMIT as f32);
+        // Cut per return, not per firing: a sequence straddling the cut has its later lasers
+        // past it, and each sweep must hold exactly one turn of azimuths.
+        if f.points.is_empty() {
+            self.advance(f.azimuth_centideg, f.time_ns);
+        }
+        for p in f.points {
+            self.advance(p.azimuth * CENTIDEG_PER_RAD, p.time_ns);
+            self.current.points.push(*p);
+            self.current.end_ns = p.time_ns;
+        }
+    }
+
+    /// Moves the sweep state to a return (or an empty firing) at `azimuth_centideg`, `time_ns`.
+    fn advance(&mut self, azimuth_centideg: f32, time_ns: u64) {
+        let relative = (azimuth_centideg - self.cut).rem_euclid(AZIMUTH_LIMIT as f32);
         if *self.open {
             // A wrap is a drop of more than half a turn; smaller backward steps are jitter.
             let half_turn = f32::from(AZIMUTH_LIMIT / 2);
             let wrapped = relative + half_turn < *self.last_relative;
-            let too_long = f.time_ns.saturating_sub(self.current.start_ns) > MAX_SWEEP_NS;
+            let too_long = time_ns.saturating_sub(self.current.start_ns) > MAX_SWEEP_NS;
             if wrapped || too_long {
                 self.close(wrapped);
                 // The packet that starts the new sweep counts in it too.
@@ -238,7 +253,7 @@ impl Cutter<'_> {
         }
         if !*self.open {
             *self.open = true;
-            self.current.start_ns = f.time_ns;
+            self.current.start_ns = time_ns;
             self.current.index = *self.next_index;
             *self.next_index += 1;
             // A stream that starts within a firing or two of the cut starts a whole sweep.
@@ -251,12 +266,8 @@ impl Cutter<'_> {
             self.current.packets_missing += self.missing;
             *self.counted = true;
         }
-        self.current.end_ns = f.time_ns;
+        self.current.end_ns = self.current.end_ns.max(time_ns);
         self.current.last_receive_ns = self.current.last_receive_ns.max(self.receive_ns);
-        if let Some(last) = f.points.last() {
-            self.current.end_ns = last.time_ns;
-        }
-        self.current.points.extend_from_slice(f.points);
         *self.last_relative = relative;
     }
 
