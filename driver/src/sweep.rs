@@ -10,6 +10,7 @@ use std::collections::VecDeque;
 use crossbeam_channel::{Receiver, Sender};
 
 use crate::decode::{Decoder, Firing, Point};
+
 use crate::wire::{DataPacket, AZIMUTH_LIMIT};
 
 /// One rotation of returns.
@@ -75,40 +76,38 @@ const CENTIDEG_PER_RAD: f32 = 18_000.0 / std::f32::consts::PI;
 #[derive(Debug)]
 pub struct SweepAssembler {
     decoder: Decoder,
-    cut_centideg: f32,
-    capacity: usize,
-    current: Sweep,
-    open: bool,
-    /// Relative azimuth (from the cut) of the last firing.
-    last_relative: f32,
-    started_at_cut: bool,
-    next_index: u64,
-    last_packet: Option<u64>,
+    /// Points of the open sweep (decoded straight into it).
+    points: Vec<Point>,
+    cutter: Cutter,
     ready: VecDeque<Sweep>,
     pool_tx: Sender<Vec<Point>>,
-    pool_rx: Receiver<Vec<Point>>,
+    pool: Receiver<Vec<Point>>,
 }
 
 impl SweepAssembler {
     /// An assembler for packets decoded by `decoder`.
     pub fn new(decoder: Decoder, config: SweepConfig) -> Self {
-        let (pool_tx, pool_rx) = crossbeam_channel::bounded(POOL_SIZE);
+        let (pool_tx, pool) = crossbeam_channel::bounded(POOL_SIZE);
         let cut = (config.cut_azimuth.to_degrees() * 100.0).rem_euclid(f64::from(AZIMUTH_LIMIT));
-        let mut current = Sweep::default();
-        current.points.reserve(config.capacity);
         Self {
             decoder,
-            cut_centideg: cut as f32,
-            capacity: config.capacity,
-            current,
-            open: false,
-            last_relative: 0.0,
-            started_at_cut: false,
-            next_index: 0,
-            last_packet: None,
+            points: Vec::with_capacity(config.capacity),
+            cutter: Cutter {
+                cut: cut as f32,
+                capacity: config.capacity,
+                current: Sweep::default(),
+                open: false,
+                last_relative: 0.0,
+                started_at_cut: false,
+                next_index: 0,
+                last_packet_ns: None,
+                missing: 0,
+                receive_ns: 0,
+                counted: true,
+            },
             ready: VecDeque::with_capacity(4),
             pool_tx,
-            pool_rx,
+            pool,
         }
     }
 
@@ -128,40 +127,23 @@ impl SweepAssembler {
     pub fn push<T: AsRef<[u8]>>(&mut self, packet: &DataPacket<T>, packet_time_ns: u64, receive_ns: u64) {
         let mode = packet.return_mode().unwrap_or(crate::wire::ReturnMode::Strongest);
         let packet_ns = self.decoder.timing().packet_ns(mode);
-        let missing = match self.last_packet {
-            Some(last_time) => {
-                let step = packet_time_ns.saturating_sub(last_time);
-                if step > MAX_SWEEP_NS {
-                    // Silence: whatever was open is cut off.
-                    self.close(false);
-                    0
-                } else {
-                    // Steps are whole packets (±1 µs counter rounding).
-                    ((step + packet_ns / 2) / packet_ns).saturating_sub(1) as u32
-                }
+        let mut tail = Tail { ready: &mut self.ready, pool: &self.pool };
+        let c = &mut self.cutter;
+        c.missing = 0;
+        if let Some(last) = c.last_packet_ns {
+            let step = packet_time_ns.saturating_sub(last);
+            if step > MAX_SWEEP_NS {
+                // Silence: whatever was open is cut off.
+                c.close(&mut self.points, false, &mut tail);
+            } else {
+                // Steps are whole packets (±1 µs counter rounding).
+                c.missing = ((step + packet_ns / 2) / packet_ns).saturating_sub(1) as u32;
             }
-            None => 0,
-        };
-        self.last_packet = Some(packet_time_ns);
-        let mut counted = false;
-        // The decoder borrows self.decoder; collect the firings into the sweep through a
-        // split borrow.
-        let decoder = &self.decoder;
-        let state = &mut Cutter {
-            cut: self.cut_centideg,
-            current: &mut self.current,
-            open: &mut self.open,
-            last_relative: &mut self.last_relative,
-            started_at_cut: &mut self.started_at_cut,
-            next_index: &mut self.next_index,
-            ready: &mut self.ready,
-            pool_rx: &self.pool_rx,
-            capacity: self.capacity,
-            missing,
-            receive_ns,
-            counted: &mut counted,
-        };
-        decoder.for_each_firing(packet, packet_time_ns, |f| state.firing(f));
+        }
+        c.last_packet_ns = Some(packet_time_ns);
+        c.receive_ns = receive_ns;
+        c.counted = false;
+        self.decoder.decode_firings(packet, packet_time_ns, &mut self.points, |out, f| c.firing(out, f, &mut tail));
     }
 
     /// The oldest completed sweep not yet taken.
@@ -172,25 +154,8 @@ impl SweepAssembler {
     /// Closes the open sweep at the end of the stream (it is partial unless it happens to end
     /// exactly at the cut); take it with [`Self::take_sweep`].
     pub fn finish(&mut self) {
-        self.close(false);
-    }
-
-    fn close(&mut self, at_cut: bool) {
-        let mut cutter = Cutter {
-            cut: self.cut_centideg,
-            current: &mut self.current,
-            open: &mut self.open,
-            last_relative: &mut self.last_relative,
-            started_at_cut: &mut self.started_at_cut,
-            next_index: &mut self.next_index,
-            ready: &mut self.ready,
-            pool_rx: &self.pool_rx,
-            capacity: self.capacity,
-            missing: 0,
-            receive_ns: 0,
-            counted: &mut true,
-        };
-        cutter.close(at_cut);
+        let mut tail = Tail { ready: &mut self.ready, pool: &self.pool };
+        self.cutter.close(&mut self.points, false, &mut tail);
     }
 }
 
@@ -207,81 +172,131 @@ impl SweepRecycler {
     }
 }
 
-struct Cutter<'a> {
-    cut: f32,
-    current: &'a mut Sweep,
-    open: &'a mut bool,
-    last_relative: &'a mut f32,
-    started_at_cut: &'a mut bool,
-    next_index: &'a mut u64,
+/// Where closed sweeps go and fresh buffers come from.
+struct Tail<'a> {
     ready: &'a mut VecDeque<Sweep>,
-    pool_rx: &'a Receiver<Vec<Point>>,
-    capacity: usize,
-    missing: u32,
-    receive_ns: u64,
-    counted: &'a mut bool,
+    pool: &'a Receiver<Vec<Point>>,
 }
 
-impl Cutter<'_> {
-    fn firing(&mut self, f: Firing<'_>) {
-        // Cut per return, not per firing: a sequence straddling the cut has its later lasers
-        // past it, and each sweep must hold exactly one turn of azimuths.
-        if f.points.is_empty() {
-            self.advance(f.azimuth_centideg, f.time_ns);
+/// The open sweep's bookkeeping (its points live in the assembler's vector).
+#[derive(Debug)]
+struct Cutter {
+    cut: f32,
+    capacity: usize,
+    current: Sweep,
+    open: bool,
+    /// Relative azimuth (from the cut) of the last return or firing.
+    last_relative: f32,
+    started_at_cut: bool,
+    next_index: u64,
+    last_packet_ns: Option<u64>,
+    /// Packets missing before the packet being decoded, its receive time, and whether it has
+    /// been counted in the open sweep.
+    missing: u32,
+    receive_ns: u64,
+    counted: bool,
+}
+
+impl Cutter {
+    fn relative(&self, azimuth_centideg: f32) -> f32 {
+        crate::decode::wrap_azimuth(azimuth_centideg - self.cut)
+    }
+
+    /// Whether a return at `relative`, `time_ns` belongs to a new sweep: `Some(true)` after a
+    /// wrap through the cut, `Some(false)` when the open sweep has lasted too long.
+    fn cut_before(&self, relative: f32, time_ns: u64) -> Option<bool> {
+        if !self.open {
+            return None;
         }
-        for p in f.points {
-            self.advance(p.azimuth * CENTIDEG_PER_RAD, p.time_ns);
-            self.current.points.push(*p);
-            self.current.end_ns = p.time_ns;
+        // A wrap is a drop of more than half a turn; smaller backward steps are jitter.
+        let half_turn = f32::from(AZIMUTH_LIMIT / 2);
+        if relative + half_turn < self.last_relative {
+            Some(true)
+        } else if time_ns.saturating_sub(self.current.start_ns) > MAX_SWEEP_NS {
+            Some(false)
+        } else {
+            None
         }
     }
 
-    /// Moves the sweep state to a return (or an empty firing) at `azimuth_centideg`, `time_ns`.
-    fn advance(&mut self, azimuth_centideg: f32, time_ns: u64) {
-        let relative = (azimuth_centideg - self.cut).rem_euclid(AZIMUTH_LIMIT as f32);
-        if *self.open {
-            // A wrap is a drop of more than half a turn; smaller backward steps are jitter.
-            let half_turn = f32::from(AZIMUTH_LIMIT / 2);
-            let wrapped = relative + half_turn < *self.last_relative;
-            let too_long = time_ns.saturating_sub(self.current.start_ns) > MAX_SWEEP_NS;
-            if wrapped || too_long {
-                self.close(wrapped);
-                // The packet that starts the new sweep counts in it too.
-                *self.counted = false;
-                self.missing = 0;
-            }
-        }
-        if !*self.open {
-            *self.open = true;
+    /// Accounts for a return (or an empty firing) in the open sweep, opening one if needed.
+    fn extend(&mut self, relative: f32, time_ns: u64) {
+        if !self.open {
+            self.open = true;
             self.current.start_ns = time_ns;
-            self.current.index = *self.next_index;
-            *self.next_index += 1;
+            self.current.index = self.next_index;
+            self.next_index += 1;
             // A stream that starts within a firing or two of the cut starts a whole sweep.
-            if !*self.started_at_cut {
-                *self.started_at_cut = relative < 100.0;
+            if !self.started_at_cut {
+                self.started_at_cut = relative < 100.0;
             }
         }
-        if !*self.counted {
+        if !self.counted {
             self.current.packets_received += 1;
             self.current.packets_missing += self.missing;
-            *self.counted = true;
+            self.counted = true;
         }
         self.current.end_ns = self.current.end_ns.max(time_ns);
         self.current.last_receive_ns = self.current.last_receive_ns.max(self.receive_ns);
-        *self.last_relative = relative;
+        self.last_relative = relative;
     }
 
-    fn close(&mut self, at_cut: bool) {
-        if !*self.open {
+    fn firing(&mut self, out: &mut Vec<Point>, f: Firing, tail: &mut Tail<'_>) {
+        let Some(last) = out.get(f.first_point..).and_then(<[Point]>::last).copied() else {
+            let relative = self.relative(f.azimuth_centideg);
+            if let Some(at_cut) = self.cut_before(relative, f.time_ns) {
+                self.close(out, at_cut, tail);
+            }
+            self.extend(relative, f.time_ns);
+            return;
+        };
+        // Azimuths rise through a firing, so the cut falls inside it only if its last return
+        // is past the cut; otherwise the whole firing is accounted for at once.
+        let last_relative = self.relative(last.azimuth * CENTIDEG_PER_RAD);
+        if self.open && self.cut_before(last_relative, last.time_ns).is_none() {
+            self.extend(last_relative, last.time_ns);
             return;
         }
-        *self.open = false;
-        let fresh = self.pool_rx.try_recv().unwrap_or_else(|_| Vec::with_capacity(self.capacity));
-        let mut done = std::mem::replace(self.current, Sweep { points: fresh, ..Sweep::default() });
-        done.partial = !(*self.started_at_cut && at_cut);
+        // Cut per return, not per firing: a sequence straddling the cut has its later lasers
+        // past it, and each sweep must hold exactly one turn of azimuths.
+        let mut i = f.first_point;
+        while i < out.len() {
+            let p = out[i];
+            let relative = self.relative(p.azimuth * CENTIDEG_PER_RAD);
+            if let Some(at_cut) = self.cut_before(relative, p.time_ns) {
+                let mut next = tail.pool.try_recv().unwrap_or_else(|_| Vec::with_capacity(self.capacity));
+                next.extend_from_slice(&out[i..]);
+                out.truncate(i);
+                std::mem::swap(out, &mut next);
+                self.finish_sweep(next, at_cut, tail);
+                i = 0;
+                // The packet that starts the new sweep counts in it too.
+                self.counted = false;
+                self.missing = 0;
+            }
+            self.extend(relative, p.time_ns);
+            i += 1;
+        }
+    }
+
+    /// Closes the open sweep with every point in `out`, leaving `out` empty for the next.
+    fn close(&mut self, out: &mut Vec<Point>, at_cut: bool, tail: &mut Tail<'_>) {
+        if !self.open {
+            return;
+        }
+        let mut next = tail.pool.try_recv().unwrap_or_else(|_| Vec::with_capacity(self.capacity));
+        std::mem::swap(out, &mut next);
+        self.finish_sweep(next, at_cut, tail);
+    }
+
+    fn finish_sweep(&mut self, points: Vec<Point>, at_cut: bool, tail: &mut Tail<'_>) {
+        self.open = false;
+        let mut done = std::mem::take(&mut self.current);
+        done.points = points;
+        done.partial = !(self.started_at_cut && at_cut);
         // The next sweep starts at the cut only if this one ended there.
-        *self.started_at_cut = at_cut;
-        self.ready.push_back(done);
+        self.started_at_cut = at_cut;
+        tail.ready.push_back(done);
     }
 }
 
