@@ -7,7 +7,10 @@ use anyhow::{Context, Result};
 use clap::Args;
 use glint_driver::calibration::load_calibration;
 use glint_driver::pcap::{CaptureError, CaptureStats};
-use glint_driver::{Model, PacketKind, PcapSource, Ports, SensorStream, StreamConfig, StreamError, Sweep, SweepConfig};
+use glint_driver::{
+    Model, PacketKind, PcapSource, Ports, SensorStream, StreamConfig, StreamError, Sweep,
+    SweepConfig,
+};
 
 /// Options that say how to read the sensor's packets.
 #[derive(Args, Debug, Clone)]
@@ -45,13 +48,19 @@ impl SensorArgs {
         Ok(StreamConfig {
             model: self.model,
             calibration,
-            sweep: SweepConfig { cut_azimuth: self.cut_azimuth.to_radians(), ..SweepConfig::default() },
+            sweep: SweepConfig {
+                cut_azimuth: self.cut_azimuth.to_radians(),
+                ..SweepConfig::default()
+            },
         })
     }
 
     /// The ports to read.
     pub fn ports(&self) -> Ports {
-        Ports { data: self.data_port, position: self.position_port }
+        Ports {
+            data: self.data_port,
+            position: self.position_port,
+        }
     }
 }
 
@@ -69,8 +78,13 @@ pub struct CaptureReport {
 }
 
 /// Replays `path` through a fresh stream, calling `on_sweep` for every sweep in order.
-pub fn replay(path: &Path, sensor: &SensorArgs, mut on_sweep: impl FnMut(&Sweep) -> Result<()>) -> Result<CaptureReport> {
-    let mut source = PcapSource::open(path, sensor.ports()).with_context(|| format!("cannot replay {}", path.display()))?;
+pub fn replay(
+    path: &Path,
+    sensor: &SensorArgs,
+    mut on_sweep: impl FnMut(&Sweep) -> Result<()>,
+) -> Result<CaptureReport> {
+    let mut source = PcapSource::open(path, sensor.ports())
+        .with_context(|| format!("cannot replay {}", path.display()))?;
     let mut stream = SensorStream::new(sensor.stream_config()?);
     let mut dropped_logged = 0u32;
     let mut handle = |stream: &mut SensorStream, result: Result<(), StreamError>| -> Result<()> {
@@ -107,5 +121,10 @@ pub fn replay(path: &Path, sensor: &SensorArgs, mut on_sweep: impl FnMut(&Sweep)
     };
     let result = stream.finish();
     handle(&mut stream, result)?;
-    Ok(CaptureReport { port_counts: source.port_counts(), capture: source.capture_stats(), stream, damage })
+    Ok(CaptureReport {
+        port_counts: source.port_counts(),
+        capture: source.capture_stats(),
+        stream,
+        damage,
+    })
 }

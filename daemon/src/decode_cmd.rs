@@ -28,8 +28,12 @@ pub const CSV_HEADER: &str = "sweep,time_ns,ring,laser,azimuth_deg,x,y,z,reflect
 
 /// Runs the command.
 pub fn run(args: DecodeArgs) -> Result<()> {
-    let ply = args.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("ply"));
-    let file = File::create(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    let ply = args
+        .out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("ply"));
+    let file =
+        File::create(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let mut out = BufWriter::with_capacity(1 << 20, file);
     let mut count = 0u64;
     if ply {
@@ -57,15 +61,21 @@ pub fn run(args: DecodeArgs) -> Result<()> {
         write_ply_header(&mut header, count)?;
         header.flush()?;
     } else {
-        out.flush().with_context(|| format!("cannot write {}", args.out.display()))?;
+        out.flush()
+            .with_context(|| format!("cannot write {}", args.out.display()))?;
     }
     let stats = report.stream.stats();
     if let Some(d) = report.stream.detection() {
         eprintln!("{}", d.describe());
     }
-    eprintln!("{count} returns in {} sweeps written to {}", stats.sweeps, args.out.display());
+    eprintln!(
+        "{count} returns in {} sweeps written to {}",
+        stats.sweeps,
+        args.out.display()
+    );
     if let Some(damage) = report.damage {
-        return Err(damage).context("the capture is damaged; the returns before the damage were written");
+        return Err(damage)
+            .context("the capture is damaged; the returns before the damage were written");
     }
     Ok(())
 }

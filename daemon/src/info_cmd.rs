@@ -34,7 +34,10 @@ pub fn run(args: InfoArgs) -> Result<()> {
         Some(d) => println!("model: {}", d.describe()),
         None => println!("model: undecided (no data packets)"),
     }
-    println!("return mode: {}", st.return_mode.map_or("none", |m| m.name()));
+    println!(
+        "return mode: {}",
+        st.return_mode.map_or("none", |m| m.name())
+    );
     println!(
         "packets: {data} data (port {}), {position} position (port {}), {other} to other ports",
         args.sensor.data_port, args.sensor.position_port
@@ -84,10 +87,15 @@ pub fn run(args: InfoArgs) -> Result<()> {
         st.packets_missing, st.clock.hour_wraps, st.clock.backward_jumps, st.clock.forward_jumps, st.clock.reordered
     );
     if st.product_id_changes > 0 {
-        println!("warning: the product-id byte changed {} times within the capture", st.product_id_changes);
+        println!(
+            "warning: the product-id byte changed {} times within the capture",
+            st.product_id_changes
+        );
     }
     if let Some(damage) = report.damage {
-        return Err(anyhow::Error::new(damage).context("the capture is damaged; the figures above cover the part before the damage"));
+        return Err(anyhow::Error::new(damage).context(
+            "the capture is damaged; the figures above cover the part before the damage",
+        ));
     }
     Ok(())
 }

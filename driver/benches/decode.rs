@@ -11,10 +11,13 @@ use std::path::PathBuf;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use glint_driver::sweep::SweepAssembler;
 use glint_driver::wire::{BLOCKS_PER_PACKET, BLOCK_FLAG, DATA_PAYLOAD_LEN};
-use glint_driver::{DataPacket, Decoder, Model, PacketKind, PcapSource, Ports, ReturnMode, SweepConfig};
+use glint_driver::{
+    DataPacket, Decoder, Model, PacketKind, PcapSource, Ports, ReturnMode, SweepConfig,
+};
 
 fn packets() -> Vec<Vec<u8>> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/vlp16_20hz_50_rotations.pcap");
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/vlp16_20hz_50_rotations.pcap");
     if let Ok(mut source) = PcapSource::open(&path, Ports::default()) {
         let mut out = Vec::new();
         while let Ok(Some(p)) = source.next() {

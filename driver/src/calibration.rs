@@ -19,7 +19,10 @@ use crate::model::{Laser, LaserTable, LaserTableError};
 pub enum CalibrationError {
     /// The file could not be read.
     #[error("cannot read calibration file {path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
     /// The file is not YAML.
     #[error("calibration file is not valid YAML: {0}")]
     Yaml(String),
@@ -42,8 +45,11 @@ pub fn load_calibration(path: &Path) -> Result<LaserTable, CalibrationError> {
 
 /// Parses calibration text in the ROS layout.
 pub fn parse_calibration(text: &str) -> Result<LaserTable, CalibrationError> {
-    let docs = YamlLoader::load_from_str(text).map_err(|e| CalibrationError::Yaml(e.to_string()))?;
-    let doc = docs.first().ok_or_else(|| CalibrationError::Layout("empty document".into()))?;
+    let docs =
+        YamlLoader::load_from_str(text).map_err(|e| CalibrationError::Yaml(e.to_string()))?;
+    let doc = docs
+        .first()
+        .ok_or_else(|| CalibrationError::Layout("empty document".into()))?;
     let lasers = doc["lasers"]
         .as_vec()
         .ok_or_else(|| CalibrationError::Layout("no `lasers` list".into()))?;
@@ -65,10 +71,13 @@ pub fn parse_calibration(text: &str) -> Result<LaserTable, CalibrationError> {
             .and_then(|id| table.get_mut(id))
             .ok_or_else(|| CalibrationError::Layout(format!("laser_id {id} out of range")))?;
         if slot.is_some() {
-            return Err(CalibrationError::Layout(format!("laser_id {id} listed twice")));
+            return Err(CalibrationError::Layout(format!(
+                "laser_id {id} listed twice"
+            )));
         }
-        let elevation = number(entry, "vert_correction")?
-            .ok_or_else(|| CalibrationError::Layout(format!("laser {id} has no vert_correction")))?;
+        let elevation = number(entry, "vert_correction")?.ok_or_else(|| {
+            CalibrationError::Layout(format!("laser {id} has no vert_correction"))
+        })?;
         *slot = Some(Laser {
             elevation,
             vertical_offset: number(entry, "vert_offset_correction")?.unwrap_or(0.0),
@@ -77,7 +86,10 @@ pub fn parse_calibration(text: &str) -> Result<LaserTable, CalibrationError> {
             distance_correction: number(entry, "dist_correction")?.unwrap_or(0.0),
         });
     }
-    let lasers: Vec<Laser> = table.into_iter().map(|l| l.expect("every id checked")).collect();
+    let lasers: Vec<Laser> = table
+        .into_iter()
+        .map(|l| l.expect("every id checked"))
+        .collect();
     Ok(LaserTable::new(lasers)?)
 }
 
@@ -87,7 +99,9 @@ fn number(entry: &Yaml, key: &str) -> Result<Option<f64>, CalibrationError> {
         Yaml::BadValue | Yaml::Null => Ok(None),
         Yaml::Real(_) => Ok(entry[key].as_f64()),
         Yaml::Integer(i) => Ok(Some(*i as f64)),
-        other => Err(CalibrationError::Layout(format!("{key} is not a number: {other:?}"))),
+        other => Err(CalibrationError::Layout(format!(
+            "{key} is not a number: {other:?}"
+        ))),
     }
 }
 

@@ -195,7 +195,11 @@ impl Clock {
                 // A late packet: it belongs before the last one, in the previous hour if the
                 // last one had just wrapped.
                 self.stats.reordered += 1;
-                let hours = if counter > last { self.hours.saturating_sub(1) } else { self.hours };
+                let hours = if counter > last {
+                    self.hours.saturating_sub(1)
+                } else {
+                    self.hours
+                };
                 return hours * HOUR_US + u64::from(counter);
             }
             // The counter went back: a reset. Keep counting from here; the offset tracking
@@ -311,7 +315,10 @@ mod tests {
         assert_eq!(t, (20_780 * 86_400 + 11 * 3600) * NS_PER_S + 200_000_000);
         // One before it to 10:xx.
         let t = c.packet_time(3_599_900_000, 0);
-        assert_eq!(t, (20_780 * 86_400 + 10 * 3600) * NS_PER_S + 3_599_900_000_000);
+        assert_eq!(
+            t,
+            (20_780 * 86_400 + 10 * 3600) * NS_PER_S + 3_599_900_000_000
+        );
         assert_eq!(c.source(), TimeSource::Gps);
     }
 

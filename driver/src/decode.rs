@@ -11,7 +11,9 @@
 //! laser's elevation terms and time offsets.
 
 use crate::model::{firings_blocks, FiringTiming, LaserTable, Model};
-use crate::wire::{DataPacket, ReturnMode, AZIMUTH_LIMIT, BLOCKS_PER_PACKET, DISTANCE_UNIT_M, RECORDS_PER_BLOCK};
+use crate::wire::{
+    DataPacket, ReturnMode, AZIMUTH_LIMIT, BLOCKS_PER_PACKET, DISTANCE_UNIT_M, RECORDS_PER_BLOCK,
+};
 
 /// Which return of a firing a point is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
@@ -136,7 +138,11 @@ impl Decoder {
     /// If the table's laser count is not the model's.
     pub fn new(model: Model, table: &LaserTable) -> Self {
         let timing = model.timing();
-        assert_eq!(table.len(), timing.lasers, "laser table does not fit {model}");
+        assert_eq!(
+            table.len(),
+            timing.lasers,
+            "laser table does not fit {model}"
+        );
         let lasers = table
             .lasers()
             .iter()
@@ -162,11 +168,18 @@ impl Decoder {
                 [a.sin() as f32, a.cos() as f32]
             })
             .collect();
-        let corrected = table
-            .lasers()
-            .iter()
-            .any(|l| l.azimuth_correction != 0.0 || l.horizontal_offset != 0.0 || l.distance_correction != 0.0);
-        Self { model, timing, lasers, corrected, trig }
+        let corrected = table.lasers().iter().any(|l| {
+            l.azimuth_correction != 0.0
+                || l.horizontal_offset != 0.0
+                || l.distance_correction != 0.0
+        });
+        Self {
+            model,
+            timing,
+            lasers,
+            corrected,
+            trig,
+        }
     }
 
     /// A decoder with the model's factory table.
@@ -200,7 +213,11 @@ impl Decoder {
         let dual = mode == ReturnMode::Dual;
         let stride = if dual { 2 } else { 1 };
         let firings = firings_blocks(mode);
-        let single_kind = if mode == ReturnMode::Last { ReturnKind::Last } else { ReturnKind::Strongest };
+        let single_kind = if mode == ReturnMode::Last {
+            ReturnKind::Last
+        } else {
+            ReturnKind::Strongest
+        };
         let seq_per_block = self.timing.sequences_per_block;
         let lasers = self.timing.lasers;
 
@@ -208,8 +225,16 @@ impl Decoder {
         let step_of = |k: usize| wrap_step(az_of(k + 1) - az_of(k));
         let mut previous_step = if firings > 1 { step_of(0) } else { 0.0 };
         for k in 0..firings {
-            let step = if k + 1 < firings { step_of(k) } else { previous_step };
-            let step = if step > MAX_BLOCK_STEP_CENTIDEG { previous_step } else { step };
+            let step = if k + 1 < firings {
+                step_of(k)
+            } else {
+                previous_step
+            };
+            let step = if step > MAX_BLOCK_STEP_CENTIDEG {
+                previous_step
+            } else {
+                step
+            };
             previous_step = step;
             // Azimuth advance per ns over this block.
             let rate = step / self.timing.block_ns() as f32;
@@ -224,7 +249,13 @@ impl Decoder {
                 let step = rate * self.timing.laser_ns as f32 * CENTIDEG_TO_RAD;
                 let step_trig = (step - step * step * step / 6.0, 1.0 - 0.5 * step * step);
                 let first_point = out.len();
-                let sequence = Sequence { azimuth: seq_azimuth, rate, time_ns: seq_time, trig: seq_trig, step_trig };
+                let sequence = Sequence {
+                    azimuth: seq_azimuth,
+                    rate,
+                    time_ns: seq_time,
+                    trig: seq_trig,
+                    step_trig,
+                };
                 let range = seq * lasers * 3..(seq + 1) * lasers * 3;
                 if dual {
                     let last = &packet.block_records(2 * k)[range.clone()];
@@ -236,7 +267,14 @@ impl Decoder {
                     let records = &packet.block_records(k)[range];
                     self.decode_sequence(records, None, single_kind, &sequence, out);
                 }
-                on_firing(out, Firing { azimuth_centideg: wrap_azimuth(seq_azimuth), time_ns: seq_time, first_point });
+                on_firing(
+                    out,
+                    Firing {
+                        azimuth_centideg: wrap_azimuth(seq_azimuth),
+                        time_ns: seq_time,
+                        first_point,
+                    },
+                );
             }
         }
     }
@@ -273,7 +311,10 @@ impl Decoder {
         let (mut sin_a, mut cos_a) = seq.trig;
         for (laser, (record, terms)) in records.chunks_exact(3).zip(&self.lasers).enumerate() {
             let trig = (sin_a, cos_a);
-            (sin_a, cos_a) = (sin_a * seq.step_trig.1 + cos_a * seq.step_trig.0, cos_a * seq.step_trig.1 - sin_a * seq.step_trig.0);
+            (sin_a, cos_a) = (
+                sin_a * seq.step_trig.1 + cos_a * seq.step_trig.0,
+                cos_a * seq.step_trig.1 - sin_a * seq.step_trig.0,
+            );
             let raw = u16::from_le_bytes([record[0], record[1]]);
             if raw == 0 {
                 continue;
@@ -474,11 +515,19 @@ mod tests {
         d.decode_into(&DataPacket::new_checked(&buf[..]).unwrap(), 0, &mut pts);
         // 6 pairs × 32 records; identical pairs merge to one point, except laser 3 seq 0 of pair 0.
         assert_eq!(pts.len(), 6 * 32 + 1);
-        let l3: Vec<_> = pts.iter().filter(|p| p.laser == 3 && p.time_ns == 3 * 2304).collect();
+        let l3: Vec<_> = pts
+            .iter()
+            .filter(|p| p.laser == 3 && p.time_ns == 3 * 2304)
+            .collect();
         assert_eq!(l3.len(), 2);
         assert_eq!(l3[0].return_kind, ReturnKind::Last);
         assert_eq!(l3[1].return_kind, ReturnKind::Strongest);
-        assert!(pts.iter().filter(|p| p.return_kind == ReturnKind::Both).count() == 6 * 32 - 1);
+        assert!(
+            pts.iter()
+                .filter(|p| p.return_kind == ReturnKind::Both)
+                .count()
+                == 6 * 32 - 1
+        );
         // Pair 1 starts one block (110.592 µs) later.
         assert!(pts.iter().any(|p| p.time_ns == 110_592));
     }
@@ -490,7 +539,11 @@ mod tests {
         let table = LaserTable::new(lasers).unwrap();
         let buf = packet(ReturnMode::Strongest, 9_000, 40);
         let mut pts = Vec::new();
-        Decoder::new(Model::Vlp16, &table).decode_into(&DataPacket::new_checked(&buf[..]).unwrap(), 0, &mut pts);
+        Decoder::new(Model::Vlp16, &table).decode_into(
+            &DataPacket::new_checked(&buf[..]).unwrap(),
+            0,
+            &mut pts,
+        );
         let p = pts[3];
         let expected = (90.0f64 + 40.0 / 100.0 * 3.0 * 2.304 / 110.592).to_radians() - 0.1;
         assert!((f64::from(p.azimuth) - expected).abs() < 1e-6);

@@ -258,7 +258,11 @@ pub enum LaserTableError {
     WrongCount(usize),
     /// A value that is not finite or out of any sensor's range.
     #[error("laser {laser}: {what} = {value} is not plausible")]
-    Implausible { laser: usize, what: &'static str, value: f64 },
+    Implausible {
+        laser: usize,
+        what: &'static str,
+        value: f64,
+    },
 }
 
 /// Per-laser geometry in firing order, with each laser's ring (0 = lowest elevation).
@@ -278,13 +282,21 @@ impl LaserTable {
             let checks = [
                 ("elevation", l.elevation, std::f64::consts::FRAC_PI_2),
                 ("vertical_offset", l.vertical_offset, 1.0),
-                ("azimuth_correction", l.azimuth_correction, std::f64::consts::PI),
+                (
+                    "azimuth_correction",
+                    l.azimuth_correction,
+                    std::f64::consts::PI,
+                ),
                 ("horizontal_offset", l.horizontal_offset, 1.0),
                 ("distance_correction", l.distance_correction, 10.0),
             ];
             for (what, value, limit) in checks {
                 if !value.is_finite() || value.abs() > limit {
-                    return Err(LaserTableError::Implausible { laser: i, what, value });
+                    return Err(LaserTableError::Implausible {
+                        laser: i,
+                        what,
+                        value,
+                    });
                 }
             }
         }
@@ -392,7 +404,10 @@ impl Detection {
             }
             ByteVerdict::Unknown => "; the product-id byte names no supported model".into(),
         };
-        format!("{} ({how}); product-id byte {byte}; timing says {timing}{note}", self.model.name())
+        format!(
+            "{} ({how}); product-id byte {byte}; timing says {timing}{note}",
+            self.model.name()
+        )
     }
 }
 
@@ -409,7 +424,11 @@ fn verdict(model: Model, byte: u8) -> ByteVerdict {
 pub enum DetectionError {
     /// The timing matches a family Glint does not decode.
     #[error("the packets' timing is a {} ({block_us:.3} µs per block), which Glint does not decode; product-id byte {product_id:#04x}", family.name())]
-    UnsupportedFamily { family: Family, block_us: f64, product_id: u8 },
+    UnsupportedFamily {
+        family: Family,
+        block_us: f64,
+        product_id: u8,
+    },
     /// The timing matches no known family.
     #[error("device time advances {block_us:.3} µs per firing block, which matches no known sensor; product-id byte {product_id:#04x}")]
     UnknownTiming { block_us: f64, product_id: u8 },
@@ -498,7 +517,10 @@ impl ModelDetector {
         let (block_us, family) = match timing {
             Some((us, Some(f))) => (us, f),
             Some((us, None)) => {
-                return Err(DetectionError::UnknownTiming { block_us: us, product_id })
+                return Err(DetectionError::UnknownTiming {
+                    block_us: us,
+                    product_id,
+                })
             }
             None => {
                 let model = byte_model.ok_or(DetectionError::Undecidable(product_id))?;
@@ -521,7 +543,11 @@ impl ModelDetector {
             },
             Family::ThirtyTwo => Model::Hdl32e,
             Family::Vlp32c => {
-                return Err(DetectionError::UnsupportedFamily { family, block_us, product_id })
+                return Err(DetectionError::UnsupportedFamily {
+                    family,
+                    block_us,
+                    product_id,
+                })
             }
         };
         Ok(Detection {

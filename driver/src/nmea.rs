@@ -85,7 +85,10 @@ pub fn parse_rmc(sentence: &[u8]) -> Option<RmcFix> {
     }
     let whole = days as u64 * 86_400 + u64::from(hh) * 3600 + u64::from(mm) * 60;
     let unix_ns = whole * NS_PER_S + (secs * 1e9).round() as u64;
-    Some(RmcFix { unix_ns, valid: status == "A" })
+    Some(RmcFix {
+        unix_ns,
+        valid: status == "A",
+    })
 }
 
 /// Writes a valid `$GPRMC` sentence (with checksum and `\r\n`) for a Unix time, at a fixed

@@ -13,9 +13,7 @@ use std::net::Ipv4Addr;
 use std::path::Path;
 
 use pcap_parser::{
-    create_reader,
-    traits::PcapReaderIterator,
-    Block, Linktype, PcapBlockOwned, PcapError,
+    create_reader, traits::PcapReaderIterator, Block, Linktype, PcapBlockOwned, PcapError,
 };
 use thiserror::Error;
 
@@ -105,15 +103,20 @@ pub struct CaptureReader {
 
 impl std::fmt::Debug for CaptureReader {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("CaptureReader").field("offset", &self.offset).field("stats", &self.stats).finish()
+        f.debug_struct("CaptureReader")
+            .field("offset", &self.offset)
+            .field("stats", &self.stats)
+            .finish()
     }
 }
 
 impl CaptureReader {
     /// Opens a capture file.
     pub fn open(path: &Path) -> Result<Self, CaptureError> {
-        let file = File::open(path)
-            .map_err(|source| CaptureError::Io { path: path.display().to_string(), source })?;
+        let file = File::open(path).map_err(|source| CaptureError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
         Self::from_reader(file)
     }
 
@@ -125,7 +128,10 @@ impl CaptureReader {
                 return Err(CaptureError::Truncated { offset: 0 })
             }
             Err(PcapError::ReadError) => {
-                return Err(CaptureError::Corrupt { offset: 0, reason: "read error".into() })
+                return Err(CaptureError::Corrupt {
+                    offset: 0,
+                    reason: "read error".into(),
+                })
             }
             Err(_) => return Err(CaptureError::NotACapture),
         };
@@ -174,8 +180,13 @@ impl CaptureReader {
                         }
                         PcapBlockOwned::Legacy(b) => {
                             self.stats.records += 1;
-                            let (linktype, nanos) = self.legacy.unwrap_or((Linktype::ETHERNET, false));
-                            let frac = if nanos { u64::from(b.ts_usec) } else { u64::from(b.ts_usec) * 1000 };
+                            let (linktype, nanos) =
+                                self.legacy.unwrap_or((Linktype::ETHERNET, false));
+                            let frac = if nanos {
+                                u64::from(b.ts_usec)
+                            } else {
+                                u64::from(b.ts_usec) * 1000
+                            };
                             let time_ns = u64::from(b.ts_sec) * 1_000_000_000 + frac;
                             Some((linktype, time_ns, b.data))
                         }
@@ -195,7 +206,8 @@ impl CaptureReader {
                             self.stats.records += 1;
                             match self.interfaces.get(epb.if_id as usize) {
                                 Some(iface) => {
-                                    let ticks = (u64::from(epb.ts_high) << 32) | u64::from(epb.ts_low);
+                                    let ticks =
+                                        (u64::from(epb.ts_high) << 32) | u64::from(epb.ts_low);
                                     let ns = (u128::from(ticks) * 1_000_000_000
                                         / u128::from(iface.resolution.max(1)))
                                         as i128
@@ -250,7 +262,9 @@ impl CaptureReader {
                 }
                 Err(PcapError::Eof) => return Ok(None),
                 Err(PcapError::Incomplete(_)) => Step::Refill,
-                Err(PcapError::UnexpectedEof) => Step::Fail(CaptureError::Truncated { offset: self.offset }),
+                Err(PcapError::UnexpectedEof) => Step::Fail(CaptureError::Truncated {
+                    offset: self.offset,
+                }),
                 Err(PcapError::BufferTooSmall) => Step::Fail(CaptureError::Corrupt {
                     offset: self.offset,
                     reason: "a record claims to be larger than any packet".into(),
@@ -259,7 +273,10 @@ impl CaptureReader {
                     offset: self.offset,
                     reason: "read error".into(),
                 }),
-                Err(e) => Step::Fail(CaptureError::Corrupt { offset: self.offset, reason: format!("{e:?}") }),
+                Err(e) => Step::Fail(CaptureError::Corrupt {
+                    offset: self.offset,
+                    reason: format!("{e:?}"),
+                }),
             };
             match step {
                 Step::Datagram(h) => {
@@ -278,7 +295,10 @@ impl CaptureReader {
                 Step::Refill => {
                     if let Err(e) = self.reader.refill() {
                         self.failed = true;
-                        return Err(CaptureError::Corrupt { offset: self.offset, reason: format!("{e:?}") });
+                        return Err(CaptureError::Corrupt {
+                            offset: self.offset,
+                            reason: format!("{e:?}"),
+                        });
                     }
                 }
                 Step::Fail(e) => {
@@ -420,7 +440,14 @@ fn parse_ipv4_udp(ip: &[u8]) -> Result<CapturedDatagram<'_>, Skip> {
     }
     let announced_len = udp_len - 8;
     let payload = &udp[8..udp.len().min(udp_len)];
-    Ok(CapturedDatagram { time_ns: 0, source, source_port, destination_port, payload, announced_len })
+    Ok(CapturedDatagram {
+        time_ns: 0,
+        source,
+        source_port,
+        destination_port,
+        payload,
+        announced_len,
+    })
 }
 
 /// Addresses of a datagram to write.
@@ -461,15 +488,28 @@ impl<W: Write> CaptureWriter<W> {
         header.extend_from_slice(&1u32.to_le_bytes()); // LINKTYPE_ETHERNET
         out.write_all(&header)?;
         // Velodyne's OUI; the sensor's MAC starts with it.
-        Ok(Self { out, frame: Vec::with_capacity(1600), ip_id: 0, source_mac: [0x60, 0x76, 0x88, 0x00, 0x00, 0x01] })
+        Ok(Self {
+            out,
+            frame: Vec::with_capacity(1600),
+            ip_id: 0,
+            source_mac: [0x60, 0x76, 0x88, 0x00, 0x00, 0x01],
+        })
     }
 
     /// Appends one datagram captured at `time_ns`. The destination MAC is broadcast.
-    pub fn write_udp(&mut self, time_ns: u64, endpoints: UdpEndpoints, payload: &[u8]) -> io::Result<()> {
+    pub fn write_udp(
+        &mut self,
+        time_ns: u64,
+        endpoints: UdpEndpoints,
+        payload: &[u8],
+    ) -> io::Result<()> {
         let udp_len = 8 + payload.len();
         let ip_len = 20 + udp_len;
         if ip_len > usize::from(u16::MAX) {
-            return Err(io::Error::new(io::ErrorKind::InvalidInput, "datagram too large"));
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "datagram too large",
+            ));
         }
         let f = &mut self.frame;
         f.clear();
@@ -553,8 +593,10 @@ mod tests {
 
     fn sample_capture() -> Vec<u8> {
         let mut w = CaptureWriter::new(Vec::new()).unwrap();
-        w.write_udp(1_700_000_000_123_456_000, endpoints(2368), &[7u8; 1206]).unwrap();
-        w.write_udp(1_700_000_000_124_000_000, endpoints(8308), &[1u8; 512]).unwrap();
+        w.write_udp(1_700_000_000_123_456_000, endpoints(2368), &[7u8; 1206])
+            .unwrap();
+        w.write_udp(1_700_000_000_124_000_000, endpoints(8308), &[1u8; 512])
+            .unwrap();
         w.finish().unwrap()
     }
 
@@ -563,7 +605,10 @@ mod tests {
         let bytes = sample_capture();
         let mut r = CaptureReader::from_reader(std::io::Cursor::new(bytes)).unwrap();
         let d = r.next().unwrap().unwrap();
-        assert_eq!((d.time_ns, d.destination_port, d.payload.len()), (1_700_000_000_123_456_000, 2368, 1206));
+        assert_eq!(
+            (d.time_ns, d.destination_port, d.payload.len()),
+            (1_700_000_000_123_456_000, 2368, 1206)
+        );
         assert_eq!(d.source, Ipv4Addr::new(192, 168, 1, 201));
         let d = r.next().unwrap().unwrap();
         assert_eq!((d.destination_port, d.payload.len()), (8308, 512));
@@ -575,20 +620,29 @@ mod tests {
     fn checksums_verify() {
         let bytes = sample_capture();
         let frame = &bytes[24 + 16..24 + 16 + 14 + 20 + 8 + 1206];
-        assert_eq!(internet_checksum(&[&frame[14..34]]), 0, "IPv4 header checksum");
+        assert_eq!(
+            internet_checksum(&[&frame[14..34]]),
+            0,
+            "IPv4 header checksum"
+        );
         let mut pseudo = [0u8; 12];
         pseudo[..4].copy_from_slice(&frame[26..30]);
         pseudo[4..8].copy_from_slice(&frame[30..34]);
         pseudo[9] = 17;
         pseudo[10..12].copy_from_slice(&frame[38..40]);
-        assert_eq!(internet_checksum(&[&pseudo, &frame[34..]]), 0, "UDP checksum");
+        assert_eq!(
+            internet_checksum(&[&pseudo, &frame[34..]]),
+            0,
+            "UDP checksum"
+        );
     }
 
     #[test]
     fn truncated_file_yields_what_came_before_and_names_the_offset() {
         let bytes = sample_capture();
         let cut = bytes.len() - 100;
-        let mut r = CaptureReader::from_reader(std::io::Cursor::new(bytes[..cut].to_vec())).unwrap();
+        let mut r =
+            CaptureReader::from_reader(std::io::Cursor::new(bytes[..cut].to_vec())).unwrap();
         assert!(r.next().unwrap().is_some());
         let second_record = 24 + 16 + 14 + 20 + 8 + 1206;
         match r.next() {
@@ -601,7 +655,9 @@ mod tests {
     #[test]
     fn foreign_files_are_refused() {
         assert!(matches!(
-            CaptureReader::from_reader(std::io::Cursor::new(b"hello, this is not a capture file".to_vec())),
+            CaptureReader::from_reader(std::io::Cursor::new(
+                b"hello, this is not a capture file".to_vec()
+            )),
             Err(CaptureError::NotACapture)
         ));
         assert!(CaptureReader::from_reader(std::io::Cursor::new(Vec::new())).is_err());
@@ -610,7 +666,9 @@ mod tests {
     #[test]
     fn vlan_sll_and_options() {
         // An IPv4 header with one 4-byte option (IHL 6), UDP to 2368 with a 3-byte payload.
-        let mut ip = vec![0x46, 0, 0, 0, 0, 0, 0, 0, 64, 17, 0, 0, 10, 0, 0, 1, 10, 0, 0, 2, 1, 1, 1, 1];
+        let mut ip = vec![
+            0x46, 0, 0, 0, 0, 0, 0, 0, 64, 17, 0, 0, 10, 0, 0, 1, 10, 0, 0, 2, 1, 1, 1, 1,
+        ];
         ip.extend_from_slice(&[0x09, 0x40, 0x09, 0x40, 0, 11, 0, 0, 1, 2, 3]);
         let total = ip.len() as u16;
         ip[2..4].copy_from_slice(&total.to_be_bytes());
@@ -623,16 +681,28 @@ mod tests {
         let mut sll = vec![0u8; 14];
         sll.extend_from_slice(&[0x08, 0x00]);
         sll.extend_from_slice(&ip);
-        assert_eq!(parse_frame(Linktype::LINUX_SLL, &sll).unwrap().payload, &[1, 2, 3]);
+        assert_eq!(
+            parse_frame(Linktype::LINUX_SLL, &sll).unwrap().payload,
+            &[1, 2, 3]
+        );
         let mut sll2 = vec![0x08, 0x00];
         sll2.extend_from_slice(&[0u8; 18]);
         sll2.extend_from_slice(&ip);
-        assert_eq!(parse_frame(Linktype::LINUX_SLL2, &sll2).unwrap().payload, &[1, 2, 3]);
+        assert_eq!(
+            parse_frame(Linktype::LINUX_SLL2, &sll2).unwrap().payload,
+            &[1, 2, 3]
+        );
         let mut frag = ip.clone();
         frag[6] = 0x20;
-        assert_eq!(parse_frame(Linktype::RAW, &frag).unwrap_err(), Skip::Fragment);
+        assert_eq!(
+            parse_frame(Linktype::RAW, &frag).unwrap_err(),
+            Skip::Fragment
+        );
         let mut arp = vec![0xFF; 12];
         arp.extend_from_slice(&[0x08, 0x06, 0, 0]);
-        assert_eq!(parse_frame(Linktype::ETHERNET, &arp).unwrap_err(), Skip::NotIpv4);
+        assert_eq!(
+            parse_frame(Linktype::ETHERNET, &arp).unwrap_err(),
+            Skip::NotIpv4
+        );
     }
 }

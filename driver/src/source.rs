@@ -16,7 +16,10 @@ pub struct Ports {
 
 impl Default for Ports {
     fn default() -> Self {
-        Self { data: 2368, position: 8308 }
+        Self {
+            data: 2368,
+            position: 8308,
+        }
     }
 }
 
@@ -58,7 +61,13 @@ impl PcapSource {
 
     /// Wraps an open reader.
     pub fn from_reader(reader: CaptureReader, ports: Ports) -> Self {
-        Self { reader, ports, data: 0, position: 0, other_ports: 0 }
+        Self {
+            reader,
+            ports,
+            data: 0,
+            position: 0,
+            other_ports: 0,
+        }
     }
 
     /// The next payload for the sensor's ports, `Ok(None)` at the end, or the error that ends
@@ -66,7 +75,9 @@ impl PcapSource {
     #[allow(clippy::should_implement_trait)]
     pub fn next(&mut self) -> Result<Option<SensorPayload<'_>>, CaptureError> {
         let (kind, receive_ns) = loop {
-            let Some(d) = self.reader.next()? else { return Ok(None) };
+            let Some(d) = self.reader.next()? else {
+                return Ok(None);
+            };
             if d.destination_port == self.ports.data {
                 self.data += 1;
                 break (PacketKind::Data, d.time_ns);
@@ -76,7 +87,11 @@ impl PcapSource {
             }
             self.other_ports += 1;
         };
-        Ok(Some(SensorPayload { kind, payload: self.reader.payload(), receive_ns }))
+        Ok(Some(SensorPayload {
+            kind,
+            payload: self.reader.payload(),
+            receive_ns,
+        }))
     }
 
     /// Datagrams to the data port, to the position port, and to other ports.

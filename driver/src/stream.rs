@@ -8,7 +8,8 @@ use crate::clock::{Clock, ClockStats};
 use crate::model::{Detection, DetectionError, LaserTable, Model, ModelDetector};
 use crate::sweep::{Sweep, SweepAssembler, SweepConfig, SweepRecycler};
 use crate::wire::{
-    DataPacket, PacketError, PositionPacket, ReturnMode, AZIMUTH_LIMIT, BLOCKS_PER_PACKET, DATA_PAYLOAD_LEN,
+    DataPacket, PacketError, PositionPacket, ReturnMode, AZIMUTH_LIMIT, BLOCKS_PER_PACKET,
+    DATA_PAYLOAD_LEN,
 };
 
 const FULL_TURN: u16 = AZIMUTH_LIMIT;
@@ -37,7 +38,11 @@ pub enum StreamError {
     Detection(#[from] DetectionError),
     /// The calibration table does not fit the model.
     #[error("the calibration file has {table} lasers but the {model} has {expected}")]
-    CalibrationMismatch { model: Model, table: usize, expected: usize },
+    CalibrationMismatch {
+        model: Model,
+        table: usize,
+        expected: usize,
+    },
 }
 
 impl StreamError {
@@ -88,8 +93,10 @@ pub struct StreamStats {
 impl StreamStats {
     /// Spin rate measured from the azimuth advance, rpm.
     pub fn rpm(&self) -> Option<f64> {
-        (self.azimuth_advance_ns > 0)
-            .then(|| self.azimuth_advance_centideg / 36_000.0 / (self.azimuth_advance_ns as f64 * 1e-9) * 60.0)
+        (self.azimuth_advance_ns > 0).then(|| {
+            self.azimuth_advance_centideg / 36_000.0 / (self.azimuth_advance_ns as f64 * 1e-9)
+                * 60.0
+        })
     }
 }
 
@@ -153,7 +160,9 @@ impl SensorStream {
     pub fn push_data(&mut self, payload: &[u8], receive_ns: u64) -> Result<(), StreamError> {
         let packet = match DataPacket::new_checked(payload) {
             Ok(p) => p,
-            Err(PacketError::AzimuthOutOfRange { value: FULL_TURN, .. }) => {
+            Err(PacketError::AzimuthOutOfRange {
+                value: FULL_TURN, ..
+            }) => {
                 // Real VLP-16 firmware writes 36000 for a full turn (seen in the 20 Hz capture in
                 // shared/data, between 35920 and 80): it means 0. Anything above is corrupt.
                 let mut fixed = [0u8; DATA_PAYLOAD_LEN];
@@ -165,7 +174,8 @@ impl SensorStream {
                     }
                 }
                 self.stats.full_turn_azimuths += 1;
-                let fixed = DataPacket::new_checked(&fixed[..]).inspect_err(|e| self.count_drop(e))?;
+                let fixed =
+                    DataPacket::new_checked(&fixed[..]).inspect_err(|e| self.count_drop(e))?;
                 return self.push_checked(fixed, receive_ns);
             }
             Err(e) => {
@@ -176,7 +186,11 @@ impl SensorStream {
         self.push_checked(packet, receive_ns)
     }
 
-    fn push_checked(&mut self, packet: DataPacket<&[u8]>, receive_ns: u64) -> Result<(), StreamError> {
+    fn push_checked(
+        &mut self,
+        packet: DataPacket<&[u8]>,
+        receive_ns: u64,
+    ) -> Result<(), StreamError> {
         self.stats.data_packets += 1;
         let id = packet.product_id();
         match self.first_product_id {
@@ -192,7 +206,10 @@ impl SensorStream {
         let mut copy = [0u8; DATA_PAYLOAD_LEN];
         copy.copy_from_slice(packet.as_bytes());
         self.held.push((copy, receive_ns));
-        if self.config.model.is_some() || self.detector.is_settled() || self.held.len() >= HOLD_PACKETS {
+        if self.config.model.is_some()
+            || self.detector.is_settled()
+            || self.held.len() >= HOLD_PACKETS
+        {
             self.decide()?;
         }
         Ok(())
@@ -250,7 +267,10 @@ impl SensorStream {
             None => model.laser_table(),
         };
         self.detection = Some(detection);
-        self.assembler = Some(SweepAssembler::new(Decoder::new(model, &table), self.config.sweep));
+        self.assembler = Some(SweepAssembler::new(
+            Decoder::new(model, &table),
+            self.config.sweep,
+        ));
         let held = std::mem::take(&mut self.held);
         for (bytes, receive_ns) in &held {
             self.decode(&DataPacket::new_unchecked(&bytes[..]), *receive_ns);
@@ -263,7 +283,10 @@ impl SensorStream {
         self.stats.return_mode = packet.return_mode().ok();
         self.stats.first_ns.get_or_insert(time);
         let assembler = self.assembler.as_mut().expect("decided before decoding");
-        let packet_ns = assembler.decoder().timing().packet_ns(self.stats.return_mode.unwrap_or(ReturnMode::Strongest));
+        let packet_ns = assembler
+            .decoder()
+            .timing()
+            .packet_ns(self.stats.return_mode.unwrap_or(ReturnMode::Strongest));
         self.stats.last_ns = self.stats.last_ns.max(time + packet_ns);
         let azimuth = packet.azimuth(0);
         if let Some((last_time, last_azimuth)) = self.last_packet {

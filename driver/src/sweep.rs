@@ -61,7 +61,10 @@ pub struct SweepConfig {
 impl Default for SweepConfig {
     fn default() -> Self {
         // 300 rpm in dual-return mode: 2 × 2 × ~28,800 returns.
-        Self { cut_azimuth: 0.0, capacity: 120_000 }
+        Self {
+            cut_azimuth: 0.0,
+            capacity: 120_000,
+        }
     }
 }
 
@@ -124,10 +127,20 @@ impl SweepAssembler {
 
     /// Adds one checked data packet whose first firing is at `packet_time_ns`, received at
     /// `receive_ns`. Sweeps it completes are then available from [`Self::take_sweep`].
-    pub fn push<T: AsRef<[u8]>>(&mut self, packet: &DataPacket<T>, packet_time_ns: u64, receive_ns: u64) {
-        let mode = packet.return_mode().unwrap_or(crate::wire::ReturnMode::Strongest);
+    pub fn push<T: AsRef<[u8]>>(
+        &mut self,
+        packet: &DataPacket<T>,
+        packet_time_ns: u64,
+        receive_ns: u64,
+    ) {
+        let mode = packet
+            .return_mode()
+            .unwrap_or(crate::wire::ReturnMode::Strongest);
         let packet_ns = self.decoder.timing().packet_ns(mode);
-        let mut tail = Tail { ready: &mut self.ready, pool: &self.pool };
+        let mut tail = Tail {
+            ready: &mut self.ready,
+            pool: &self.pool,
+        };
         let c = &mut self.cutter;
         c.missing = 0;
         if let Some(last) = c.last_packet_ns {
@@ -143,7 +156,10 @@ impl SweepAssembler {
         c.last_packet_ns = Some(packet_time_ns);
         c.receive_ns = receive_ns;
         c.counted = false;
-        self.decoder.decode_firings(packet, packet_time_ns, &mut self.points, |out, f| c.firing(out, f, &mut tail));
+        self.decoder
+            .decode_firings(packet, packet_time_ns, &mut self.points, |out, f| {
+                c.firing(out, f, &mut tail)
+            });
     }
 
     /// The oldest completed sweep not yet taken.
@@ -154,7 +170,10 @@ impl SweepAssembler {
     /// Closes the open sweep at the end of the stream (it is partial unless it happens to end
     /// exactly at the cut); take it with [`Self::take_sweep`].
     pub fn finish(&mut self) {
-        let mut tail = Tail { ready: &mut self.ready, pool: &self.pool };
+        let mut tail = Tail {
+            ready: &mut self.ready,
+            pool: &self.pool,
+        };
         self.cutter.close(&mut self.points, false, &mut tail);
     }
 }
@@ -264,7 +283,10 @@ impl Cutter {
             let p = out[i];
             let relative = self.relative(p.azimuth * CENTIDEG_PER_RAD);
             if let Some(at_cut) = self.cut_before(relative, p.time_ns) {
-                let mut next = tail.pool.try_recv().unwrap_or_else(|_| Vec::with_capacity(self.capacity));
+                let mut next = tail
+                    .pool
+                    .try_recv()
+                    .unwrap_or_else(|_| Vec::with_capacity(self.capacity));
                 next.extend_from_slice(&out[i..]);
                 out.truncate(i);
                 std::mem::swap(out, &mut next);
@@ -284,7 +306,10 @@ impl Cutter {
         if !self.open {
             return;
         }
-        let mut next = tail.pool.try_recv().unwrap_or_else(|_| Vec::with_capacity(self.capacity));
+        let mut next = tail
+            .pool
+            .try_recv()
+            .unwrap_or_else(|_| Vec::with_capacity(self.capacity));
         std::mem::swap(out, &mut next);
         self.finish_sweep(next, at_cut, tail);
     }
@@ -334,7 +359,10 @@ mod tests {
     }
 
     fn run(pk: &[(Vec<u8>, u64)], cut_deg: f64) -> Vec<Sweep> {
-        let config = SweepConfig { cut_azimuth: cut_deg.to_radians(), capacity: 1000 };
+        let config = SweepConfig {
+            cut_azimuth: cut_deg.to_radians(),
+            capacity: 1000,
+        };
         let mut a = SweepAssembler::new(Decoder::for_model(Model::Vlp16), config);
         let mut sweeps = Vec::new();
         for (buf, t) in pk {
@@ -360,7 +388,7 @@ mod tests {
                 assert!((s.rpm().unwrap() - rpm).abs() / rpm < 0.01, "{:?}", s.rpm());
                 // Every point's azimuth lies in one turn from the cut: increasing, unwrapped.
                 let first = s.points[0].azimuth;
-                assert!(first < 0.01 || first > 6.27);
+                assert!(!(0.01..=6.27).contains(&first));
                 assert!((s.packets_received as f64 - per_rev).abs() <= 2.0);
             }
         }
@@ -398,7 +426,10 @@ mod tests {
     #[test]
     fn recycled_buffers_are_reused() {
         let pk = packets(300, 600.0, 0.0, &[]);
-        let config = SweepConfig { cut_azimuth: 0.0, capacity: 10 };
+        let config = SweepConfig {
+            cut_azimuth: 0.0,
+            capacity: 10,
+        };
         let mut a = SweepAssembler::new(Decoder::for_model(Model::Vlp16), config);
         let recycler = a.recycler();
         let mut capacities = Vec::new();

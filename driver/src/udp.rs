@@ -60,7 +60,11 @@ pub struct Datagram {
 
 impl std::fmt::Debug for Datagram {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Datagram").field("kind", &self.kind).field("receive_ns", &self.receive_ns).field("len", &self.len).finish()
+        f.debug_struct("Datagram")
+            .field("kind", &self.kind)
+            .field("receive_ns", &self.receive_ns)
+            .field("len", &self.len)
+            .finish()
     }
 }
 
@@ -91,7 +95,11 @@ pub struct UdpCounters {
 pub enum UdpError {
     /// A socket call failed.
     #[error("cannot {what} {addr}: {source}")]
-    Socket { what: &'static str, addr: SocketAddr, source: io::Error },
+    Socket {
+        what: &'static str,
+        addr: SocketAddr,
+        source: io::Error,
+    },
     /// A thread could not be started.
     #[error("cannot start the receive thread: {0}")]
     Thread(io::Error),
@@ -109,7 +117,9 @@ pub struct UdpSource {
 
 /// Host clock, ns since the epoch.
 pub fn host_now_ns() -> u64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64)
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
 }
 
 impl UdpSource {
@@ -120,9 +130,12 @@ impl UdpSource {
         let mut threads = Vec::new();
         let mut granted_buffer = usize::MAX;
         let mut local = [0u16; 2];
-        for (i, (kind, port)) in [(PacketKind::Data, config.ports.data), (PacketKind::Position, config.ports.position)]
-            .into_iter()
-            .enumerate()
+        for (i, (kind, port)) in [
+            (PacketKind::Data, config.ports.data),
+            (PacketKind::Position, config.ports.position),
+        ]
+        .into_iter()
+        .enumerate()
         {
             let (socket, granted) = bind(config, port)?;
             granted_buffer = granted_buffer.min(granted);
@@ -134,7 +147,16 @@ impl UdpSource {
                 .map_err(UdpError::Thread)?;
             threads.push(handle);
         }
-        Ok(Self { stop, threads, counters, granted_buffer, local_ports: Ports { data: local[0], position: local[1] } })
+        Ok(Self {
+            stop,
+            threads,
+            counters,
+            granted_buffer,
+            local_ports: Ports {
+                data: local[0],
+                position: local[1],
+            },
+        })
     }
 
     /// The receive buffer the kernel granted, bytes (Linux reports twice the request, capped by
@@ -175,21 +197,36 @@ impl Drop for UdpSource {
 fn bind(config: &UdpConfig, port: u16) -> Result<(UdpSocket, usize), UdpError> {
     let addr = SocketAddr::new(config.bind, port);
     let err = |what| move |source| UdpError::Socket { what, addr, source };
-    let socket = Socket::new(Domain::for_address(addr), Type::DGRAM, Some(Protocol::UDP)).map_err(err("open a socket for"))?;
-    socket.set_reuse_address(true).map_err(err("set SO_REUSEADDR on"))?;
+    let socket = Socket::new(Domain::for_address(addr), Type::DGRAM, Some(Protocol::UDP))
+        .map_err(err("open a socket for"))?;
+    socket
+        .set_reuse_address(true)
+        .map_err(err("set SO_REUSEADDR on"))?;
     // The kernel may grant less than asked (rmem_max); what it granted is reported, not assumed.
     let _ = socket.set_recv_buffer_size(config.receive_buffer);
-    let granted = socket.recv_buffer_size().map_err(err("read SO_RCVBUF of"))?;
+    let granted = socket
+        .recv_buffer_size()
+        .map_err(err("read SO_RCVBUF of"))?;
     socket.bind(&addr.into()).map_err(err("bind"))?;
     if let Some(group) = config.multicast_group {
-        socket.join_multicast_v4(&group, &config.multicast_interface).map_err(err("join the multicast group on"))?;
+        socket
+            .join_multicast_v4(&group, &config.multicast_interface)
+            .map_err(err("join the multicast group on"))?;
     }
     // A short timeout lets the thread notice a stop request during sensor silence.
-    socket.set_read_timeout(Some(Duration::from_millis(100))).map_err(err("set a timeout on"))?;
+    socket
+        .set_read_timeout(Some(Duration::from_millis(100)))
+        .map_err(err("set a timeout on"))?;
     Ok((socket.into(), granted))
 }
 
-fn receive_loop(socket: UdpSocket, kind: PacketKind, stop: &AtomicBool, counters: &UdpCounters, out: &Sender<Datagram>) {
+fn receive_loop(
+    socket: UdpSocket,
+    kind: PacketKind,
+    stop: &AtomicBool,
+    counters: &UdpCounters,
+    out: &Sender<Datagram>,
+) {
     let expected = match kind {
         PacketKind::Data => DATA_PAYLOAD_LEN,
         PacketKind::Position => POSITION_PAYLOAD_LEN,
@@ -198,7 +235,16 @@ fn receive_loop(socket: UdpSocket, kind: PacketKind, stop: &AtomicBool, counters
     while !stop.load(Ordering::Relaxed) {
         let len = match socket.recv(&mut buf) {
             Ok(len) => len,
-            Err(e) if matches!(e.kind(), io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut | io::ErrorKind::Interrupted) => continue,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::WouldBlock
+                        | io::ErrorKind::TimedOut
+                        | io::ErrorKind::Interrupted
+                ) =>
+            {
+                continue
+            }
             Err(_) => {
                 counters.errors.fetch_add(1, Ordering::Relaxed);
                 std::thread::sleep(Duration::from_millis(10));
@@ -214,7 +260,12 @@ fn receive_loop(socket: UdpSocket, kind: PacketKind, stop: &AtomicBool, counters
             counters.wrong_length.fetch_add(1, Ordering::Relaxed);
             continue;
         }
-        let mut d = Datagram { kind, receive_ns, len, bytes: [0; MAX_DATAGRAM] };
+        let mut d = Datagram {
+            kind,
+            receive_ns,
+            len,
+            bytes: [0; MAX_DATAGRAM],
+        };
         d.bytes[..len].copy_from_slice(&buf[..len]);
         match out.try_send(d) {
             Ok(()) => {}
@@ -235,7 +286,10 @@ mod tests {
     fn receives_counts_and_drops_without_blocking() {
         let config = UdpConfig {
             bind: IpAddr::V4(Ipv4Addr::LOCALHOST),
-            ports: Ports { data: 0, position: 0 },
+            ports: Ports {
+                data: 0,
+                position: 0,
+            },
             ..UdpConfig::default()
         };
         let (tx, rx) = crossbeam_channel::bounded(2);
@@ -248,7 +302,12 @@ mod tests {
             sender.send_to(&[0u8; DATA_PAYLOAD_LEN], to).unwrap();
         }
         sender.send_to(b"garbage", to).unwrap();
-        sender.send_to(&[0u8; POSITION_PAYLOAD_LEN], (Ipv4Addr::LOCALHOST, ports.position)).unwrap();
+        sender
+            .send_to(
+                &[0u8; POSITION_PAYLOAD_LEN],
+                (Ipv4Addr::LOCALHOST, ports.position),
+            )
+            .unwrap();
         let counters = source.counters();
         let deadline = std::time::Instant::now() + Duration::from_secs(5);
         while counters.data.load(Ordering::Relaxed) < 6 && std::time::Instant::now() < deadline {
@@ -261,7 +320,11 @@ mod tests {
         // Which datagrams made it into the channel is a race between the two threads; each
         // must carry its own kind's length.
         while let Ok(d) = rx.try_recv() {
-            let expected = if d.kind == PacketKind::Data { DATA_PAYLOAD_LEN } else { POSITION_PAYLOAD_LEN };
+            let expected = if d.kind == PacketKind::Data {
+                DATA_PAYLOAD_LEN
+            } else {
+                POSITION_PAYLOAD_LEN
+            };
             assert_eq!(d.payload().len(), expected);
         }
         source.stop();

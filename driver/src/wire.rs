@@ -166,7 +166,10 @@ impl<T: AsRef<[u8]>> DataPacket<T> {
     }
 
     fn block_start(block: usize) -> usize {
-        assert!(block < BLOCKS_PER_PACKET, "block index {block} out of range");
+        assert!(
+            block < BLOCKS_PER_PACKET,
+            "block index {block} out of range"
+        );
         block * BLOCK_LEN
     }
 
@@ -185,7 +188,10 @@ impl<T: AsRef<[u8]>> DataPacket<T> {
     /// Channel record `record` (< 32) of block `block` (< 12): (distance in 2 mm units,
     /// reflectivity). A distance of 0 means no return.
     pub fn record(&self, block: usize, record: usize) -> (u16, u8) {
-        assert!(record < RECORDS_PER_BLOCK, "record index {record} out of range");
+        assert!(
+            record < RECORDS_PER_BLOCK,
+            "record index {record} out of range"
+        );
         let at = Self::block_start(block) + field::BLOCK_RECORDS + record * field::RECORD_LEN;
         let bytes = self.buffer.as_ref();
         (read_u16(bytes, at), bytes[at + 2])
@@ -239,7 +245,10 @@ impl<T: AsRef<[u8]> + AsMut<[u8]>> DataPacket<T> {
 
     /// Sets a channel record: distance in 2 mm units (0 = no return) and reflectivity.
     pub fn set_record(&mut self, block: usize, record: usize, distance: u16, reflectivity: u8) {
-        assert!(record < RECORDS_PER_BLOCK, "record index {record} out of range");
+        assert!(
+            record < RECORDS_PER_BLOCK,
+            "record index {record} out of range"
+        );
         let at = Self::block_start(block) + field::BLOCK_RECORDS + record * field::RECORD_LEN;
         let bytes = self.bytes_mut();
         bytes[at..at + 2].copy_from_slice(&distance.to_le_bytes());
@@ -410,7 +419,10 @@ mod tests {
         let buf = valid_packet();
         assert_eq!(
             DataPacket::new_checked(&buf[..1000]).unwrap_err(),
-            PacketError::Truncated { expected: 1206, actual: 1000 }
+            PacketError::Truncated {
+                expected: 1206,
+                actual: 1000
+            }
         );
         let mut long = buf.to_vec();
         long.push(0);
@@ -422,13 +434,19 @@ mod tests {
         bad[500] = 0x00;
         assert_eq!(
             DataPacket::new_checked(&bad[..]).unwrap_err(),
-            PacketError::BadBlockFlag { block: 5, found: 0xEE00 }
+            PacketError::BadBlockFlag {
+                block: 5,
+                found: 0xEE00
+            }
         );
         let mut bad = buf;
         bad[702..704].copy_from_slice(&36000u16.to_le_bytes());
         assert_eq!(
             DataPacket::new_checked(&bad[..]).unwrap_err(),
-            PacketError::AzimuthOutOfRange { block: 7, value: 36000 }
+            PacketError::AzimuthOutOfRange {
+                block: 7,
+                value: 36000
+            }
         );
         let mut bad = buf;
         bad[1204] = 0x40;

@@ -9,7 +9,9 @@ use std::net::Ipv4Addr;
 
 use glint_driver::pcap::{CaptureReader, CaptureWriter, UdpEndpoints};
 use glint_driver::wire::{BLOCKS_PER_PACKET, BLOCK_FLAG, DATA_PAYLOAD_LEN, RECORDS_PER_BLOCK};
-use glint_driver::{DataPacket, PacketError, PacketKind, PcapSource, Ports, ReturnMode, SensorStream, StreamConfig};
+use glint_driver::{
+    DataPacket, PacketError, PacketKind, PcapSource, Ports, ReturnMode, SensorStream, StreamConfig,
+};
 use proptest::prelude::*;
 
 #[derive(Debug, Clone)]
@@ -24,12 +26,27 @@ struct PacketFields {
 fn fields() -> impl Strategy<Value = PacketFields> {
     (
         prop::collection::vec(0u16..36_000, BLOCKS_PER_PACKET),
-        prop::collection::vec((any::<u16>(), any::<u8>()), BLOCKS_PER_PACKET * RECORDS_PER_BLOCK),
+        prop::collection::vec(
+            (any::<u16>(), any::<u8>()),
+            BLOCKS_PER_PACKET * RECORDS_PER_BLOCK,
+        ),
         any::<u32>(),
-        prop_oneof![Just(ReturnMode::Strongest), Just(ReturnMode::Last), Just(ReturnMode::Dual)],
+        prop_oneof![
+            Just(ReturnMode::Strongest),
+            Just(ReturnMode::Last),
+            Just(ReturnMode::Dual)
+        ],
         any::<u8>(),
     )
-        .prop_map(|(azimuths, records, timestamp, mode, product_id)| PacketFields { azimuths, records, timestamp, mode, product_id })
+        .prop_map(
+            |(azimuths, records, timestamp, mode, product_id)| PacketFields {
+                azimuths,
+                records,
+                timestamp,
+                mode,
+                product_id,
+            },
+        )
 }
 
 fn encode(f: &PacketFields) -> [u8; DATA_PAYLOAD_LEN] {
@@ -50,7 +67,10 @@ fn encode(f: &PacketFields) -> [u8; DATA_PAYLOAD_LEN] {
 }
 
 fn endpoints() -> UdpEndpoints {
-    UdpEndpoints { source: (Ipv4Addr::new(192, 168, 1, 201), 2368), destination: (Ipv4Addr::BROADCAST, 2368) }
+    UdpEndpoints {
+        source: (Ipv4Addr::new(192, 168, 1, 201), 2368),
+        destination: (Ipv4Addr::BROADCAST, 2368),
+    }
 }
 
 proptest! {
@@ -136,20 +156,33 @@ proptest! {
 
 #[test]
 fn every_truncation_of_a_real_packet_is_a_truncation_error() {
-    let Some(packets) = real_packets() else { return };
-    let (_, payload, _) = packets.iter().find(|(k, _, _)| *k == PacketKind::Data).unwrap();
+    let Some(packets) = real_packets() else {
+        return;
+    };
+    let (_, payload, _) = packets
+        .iter()
+        .find(|(k, _, _)| *k == PacketKind::Data)
+        .unwrap();
     for len in 0..payload.len() {
         assert_eq!(
             DataPacket::new_checked(&payload[..len]).unwrap_err(),
-            PacketError::Truncated { expected: DATA_PAYLOAD_LEN, actual: len }
+            PacketError::Truncated {
+                expected: DATA_PAYLOAD_LEN,
+                actual: len
+            }
         );
     }
 }
 
 #[test]
 fn every_structural_corruption_of_a_real_packet_is_an_error() {
-    let Some(packets) = real_packets() else { return };
-    let (_, payload, _) = packets.iter().find(|(k, _, _)| *k == PacketKind::Data).unwrap();
+    let Some(packets) = real_packets() else {
+        return;
+    };
+    let (_, payload, _) = packets
+        .iter()
+        .find(|(k, _, _)| *k == PacketKind::Data)
+        .unwrap();
     for block in 0..BLOCKS_PER_PACKET {
         for byte in 0..2 {
             for value in 0..=255u8 {
@@ -158,17 +191,25 @@ fn every_structural_corruption_of_a_real_packet_is_an_error() {
                     continue;
                 }
                 bad[block * 100 + byte] = value;
-                assert!(matches!(DataPacket::new_checked(&bad[..]), Err(PacketError::BadBlockFlag { block: b, .. }) if b == block));
+                assert!(
+                    matches!(DataPacket::new_checked(&bad[..]), Err(PacketError::BadBlockFlag { block: b, .. }) if b == block)
+                );
             }
         }
         let mut bad = payload.clone();
         bad[block * 100 + 3] = 0xFF; // azimuth ≥ 65280
-        assert!(matches!(DataPacket::new_checked(&bad[..]), Err(PacketError::AzimuthOutOfRange { .. })));
+        assert!(matches!(
+            DataPacket::new_checked(&bad[..]),
+            Err(PacketError::AzimuthOutOfRange { .. })
+        ));
     }
     for value in (0..=255u8).filter(|v| !(0x37..=0x39).contains(v)) {
         let mut bad = payload.clone();
         bad[1204] = value;
-        assert_eq!(DataPacket::new_checked(&bad[..]).unwrap_err(), PacketError::UnknownReturnMode(value));
+        assert_eq!(
+            DataPacket::new_checked(&bad[..]).unwrap_err(),
+            PacketError::UnknownReturnMode(value)
+        );
     }
 }
 

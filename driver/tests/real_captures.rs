@@ -13,7 +13,9 @@ use glint_driver::{Model, PacketKind, PcapSource, Ports, SensorStream, StreamCon
 
 /// The manual's VLP-16 table (63-9243), written here independently of the decoder's copy:
 /// laser index → elevation in degrees. Vertical offsets follow 41.91 mm × tan(−ω).
-const MANUAL_ELEVATION_DEG: [f64; 16] = [-15., 1., -13., 3., -11., 5., -9., 7., -7., 9., -5., 11., -3., 13., -1., 15.];
+const MANUAL_ELEVATION_DEG: [f64; 16] = [
+    -15., 1., -13., 3., -11., 5., -9., 7., -7., 9., -5., 11., -3., 13., -1., 15.,
+];
 
 struct Replayed {
     sweeps: Vec<Sweep>,
@@ -34,12 +36,18 @@ fn replay(path: &Path, config: StreamConfig) -> Replayed {
     }
     stream.finish().unwrap();
     sweeps.extend(std::iter::from_fn(|| stream.take_sweep()));
-    Replayed { ports: source.port_counts(), sweeps, stream }
+    Replayed {
+        ports: source.port_counts(),
+        sweeps,
+        stream,
+    }
 }
 
 #[test]
 fn real_short_capture_is_a_vlp16_despite_its_hdl32e_byte() {
-    let Some(path) = shared_data("vlp16_real_short.pcap") else { return };
+    let Some(path) = shared_data("vlp16_real_short.pcap") else {
+        return;
+    };
     let r = replay(&path, StreamConfig::default());
     let d = r.stream.detection().unwrap();
     assert_eq!(d.model, Model::Vlp16);
@@ -56,16 +64,26 @@ fn real_short_capture_is_a_vlp16_despite_its_hdl32e_byte() {
 
 #[test]
 fn a_configured_model_wins() {
-    let Some(path) = shared_data("vlp16_real_short.pcap") else { return };
-    let config = StreamConfig { model: Some(Model::PuckHiRes), ..StreamConfig::default() };
+    let Some(path) = shared_data("vlp16_real_short.pcap") else {
+        return;
+    };
+    let config = StreamConfig {
+        model: Some(Model::PuckHiRes),
+        ..StreamConfig::default()
+    };
     let r = replay(&path, config);
     let d = r.stream.detection().unwrap();
-    assert_eq!((d.model, d.source), (Model::PuckHiRes, ModelSource::Configured));
+    assert_eq!(
+        (d.model, d.source),
+        (Model::PuckHiRes, ModelSource::Configured)
+    );
 }
 
 #[test]
 fn every_point_lies_on_its_lasers_cone() {
-    let Some(path) = shared_data("vlp16_real_short.pcap") else { return };
+    let Some(path) = shared_data("vlp16_real_short.pcap") else {
+        return;
+    };
     let r = replay(&path, StreamConfig::default());
     let mut checked = 0;
     for p in r.sweeps.iter().flat_map(|s| &s.points) {
@@ -79,9 +97,17 @@ fn every_point_lies_on_its_lasers_cone() {
         // the angle error by ~1e-4 rad. Measurement noise does not enter: range noise moves a
         // point along its beam, not off it.
         let tolerance = 1e-4 + 0.06e-3 / f64::from(p.range);
-        assert!((elevation - omega).abs() < tolerance, "laser {} at {} m: {elevation} vs {omega}", p.laser, p.range);
+        assert!(
+            (elevation - omega).abs() < tolerance,
+            "laser {} at {} m: {elevation} vs {omega}",
+            p.laser,
+            p.range
+        );
         // The ring is the elevation order.
-        let rank = MANUAL_ELEVATION_DEG.iter().filter(|&&e| e < MANUAL_ELEVATION_DEG[p.laser as usize]).count();
+        let rank = MANUAL_ELEVATION_DEG
+            .iter()
+            .filter(|&&e| e < MANUAL_ELEVATION_DEG[p.laser as usize])
+            .count();
         assert_eq!(p.ring as usize, rank);
         checked += 1;
     }
@@ -90,10 +116,15 @@ fn every_point_lies_on_its_lasers_cone() {
 
 #[test]
 fn azimuths_and_times_increase_within_each_sweep() {
-    let Some(path) = shared_data("vlp16_20hz_50_rotations.pcap") else { return };
+    let Some(path) = shared_data("vlp16_20hz_50_rotations.pcap") else {
+        return;
+    };
     let r = replay(&path, StreamConfig::default());
     assert_eq!(r.sweeps.iter().filter(|s| !s.partial).count(), 50);
-    assert_eq!(r.sweeps.iter().map(|s| s.points.len()).sum::<usize>(), 700_400);
+    assert_eq!(
+        r.sweeps.iter().map(|s| s.points.len()).sum::<usize>(),
+        700_400
+    );
     for s in &r.sweeps {
         let mut last_azimuth = -1.0f32;
         let mut last_time = 0;
@@ -102,7 +133,13 @@ fn azimuths_and_times_increase_within_each_sweep() {
             // Firing order: time never goes back; azimuth (cut at 0) never goes back by more than
             // the per-laser interpolation noise.
             assert!(p.time_ns >= last_time);
-            assert!(p.azimuth >= last_azimuth - 1e-4, "sweep {}: {} after {}", s.index, p.azimuth, last_azimuth);
+            assert!(
+                p.azimuth >= last_azimuth - 1e-4,
+                "sweep {}: {} after {}",
+                s.index,
+                p.azimuth,
+                last_azimuth
+            );
             assert!(p.time_ns > last_laser_time[p.laser as usize]);
             last_laser_time[p.laser as usize] = p.time_ns;
             last_time = p.time_ns;
@@ -117,7 +154,9 @@ fn azimuths_and_times_increase_within_each_sweep() {
 
 #[test]
 fn a_truncated_copy_yields_the_packets_before_the_damage() {
-    let Some(path) = shared_data("vlp16_real_short.pcap") else { return };
+    let Some(path) = shared_data("vlp16_real_short.pcap") else {
+        return;
+    };
     let bytes = std::fs::read(&path).unwrap();
     let cut = bytes.len() * 2 / 3;
     let dir = std::env::temp_dir().join(format!("glint-trunc-{}", std::process::id()));
@@ -133,8 +172,13 @@ fn a_truncated_copy_yields_the_packets_before_the_damage() {
             Err(e) => break e,
         }
     };
-    let CaptureError::Truncated { offset } = err else { panic!("{err}") };
-    assert!(offset < cut as u64 && offset > cut as u64 - 1300, "offset {offset}, cut {cut}");
+    let CaptureError::Truncated { offset } = err else {
+        panic!("{err}")
+    };
+    assert!(
+        offset < cut as u64 && offset > cut as u64 - 1300,
+        "offset {offset}, cut {cut}"
+    );
     assert!(err.to_string().contains(&offset.to_string()));
     assert!(n > 50);
     std::fs::remove_dir_all(dir).unwrap();
@@ -142,9 +186,14 @@ fn a_truncated_copy_yields_the_packets_before_the_damage() {
 
 #[test]
 fn proper_byte_capture_decodes_as_vlp16() {
-    let Some(path) = shared_data("vlp16_example.pcap") else { return };
+    let Some(path) = shared_data("vlp16_example.pcap") else {
+        return;
+    };
     let r = replay(&path, StreamConfig::default());
     let d = r.stream.detection().unwrap();
     assert_eq!((d.model, d.byte), (Model::Vlp16, ByteVerdict::Agrees));
-    assert_eq!(r.sweeps.iter().map(|s| s.points.len()).sum::<usize>(), 31_630);
+    assert_eq!(
+        r.sweeps.iter().map(|s| s.points.len()).sum::<usize>(),
+        31_630
+    );
 }

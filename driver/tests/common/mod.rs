@@ -11,8 +11,14 @@ pub fn shared_data(name: &str) -> Option<PathBuf> {
         return Some(path);
     }
     if std::env::var("CI").is_ok_and(|v| v == "true") {
-        panic!("{} is missing: CI must run with shared/ beside the repository", path.display());
+        panic!(
+            "{} is missing: CI must run with shared/ beside the repository",
+            path.display()
+        );
     }
-    eprintln!("skipping: {} not found (shared/data is not beside the repository)", path.display());
+    eprintln!(
+        "skipping: {} not found (shared/data is not beside the repository)",
+        path.display()
+    );
     None
 }

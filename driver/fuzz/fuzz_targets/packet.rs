@@ -1,0 +1,32 @@
+//! Fuzzes the packet parser and everything behind it: checked views, the decoder for every
+//! model, and the stream (detection, clock, sweeps). Bytes 0..1206 are a data payload, the rest
+//! a position payload; a mutated length exercises truncation.
+#![no_main]
+
+use glint_driver::{DataPacket, Decoder, Model, PositionPacket, SensorStream, StreamConfig};
+use libfuzzer_sys::fuzz_target;
+
+fuzz_target!(|data: &[u8]| {
+    let (payload, rest) = data.split_at(data.len().min(1206));
+    if let Ok(p) = DataPacket::new_checked(payload) {
+        let mut out = Vec::new();
+        for model in Model::ALL {
+            out.clear();
+            Decoder::for_model(model).decode_into(&p, u64::from(p.timestamp_us()) * 1000, &mut out);
+            for q in &out {
+                assert!(q.x.is_finite() && q.y.is_finite() && q.z.is_finite());
+            }
+        }
+    }
+    if let Ok(p) = PositionPacket::new_checked(rest) {
+        let _ = p.nmea();
+        let _ = glint_driver::nmea::parse_rmc(p.nmea());
+    }
+    let mut stream = SensorStream::new(StreamConfig::default());
+    for (i, chunk) in data.chunks(1206).enumerate() {
+        let _ = stream.push_data(chunk, i as u64 * 1_327_000);
+        let _ = stream.push_position(chunk);
+        while stream.take_sweep().is_some() {}
+    }
+    let _ = stream.finish();
+});
