@@ -127,8 +127,9 @@ pub struct Decoder {
     lasers: Vec<LaserTerms>,
     /// Whether any laser has an azimuth, horizontal-offset or distance correction.
     corrected: bool,
-    /// (sin, cos) per hundredth of a degree, interleaved so a lookup touches one cache line.
-    trig: Vec<[f32; 2]>,
+    /// (sin, cos) per hundredth of a degree, interleaved so a lookup touches one cache line;
+    /// shared by every decoder.
+    trig: &'static [[f32; 2]],
 }
 
 impl Decoder {
@@ -162,12 +163,7 @@ impl Decoder {
                 ring,
             })
             .collect();
-        let trig = (0..TRIG_STEPS)
-            .map(|i| {
-                let a = (i as f64 / 100.0).to_radians();
-                [a.sin() as f32, a.cos() as f32]
-            })
-            .collect();
+        let trig = trig_table();
         let corrected = table.lasers().iter().any(|l| {
             l.azimuth_correction != 0.0
                 || l.horizontal_offset != 0.0
@@ -406,6 +402,20 @@ impl Decoder {
         let [s, c] = self.trig[i];
         (s + c * d, c - s * d)
     }
+}
+
+/// The (sin, cos) table, built on first use and shared: it depends on nothing but the azimuth
+/// resolution.
+fn trig_table() -> &'static [[f32; 2]] {
+    static TABLE: std::sync::OnceLock<Vec<[f32; 2]>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        (0..TRIG_STEPS)
+            .map(|i| {
+                let a = (i as f64 / 100.0).to_radians();
+                [a.sin() as f32, a.cos() as f32]
+            })
+            .collect()
+    })
 }
 
 /// Azimuth difference in hundredths of a degree, taken forward across the 35999→0 wrap.
