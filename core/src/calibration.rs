@@ -1,0 +1,230 @@
+//! Step 1 of the method: intensity calibration. The VLP-16 compensates range but not the
+//! incidence angle, so each diffuse return's reflectivity is divided by cos α, with α taken from
+//! the local surface normal. The normal comes from range-image neighbours (the points on the same
+//! ring either side, and on the rings above and below at the same azimuth): no search.
+//! Retro-reflectors (> 100) keep their raw value and their class; weak returns are dropped.
+
+use nalgebra::Vector3;
+
+use crate::config::CalibrationConfig;
+use crate::scan::Scan;
+
+/// Columns of the range image: 0.2°, the VLP-16's horizontal step at 600 rpm.
+pub const COLUMNS: usize = 1800;
+const EMPTY: u32 = u32::MAX;
+
+/// A sweep arranged by ring and azimuth column, with each return's calibrated reflectivity.
+/// Buffers are reused from sweep to sweep.
+#[derive(Debug, Default, Clone)]
+pub struct RangeImage {
+    rings: usize,
+    /// Per ring, indices into the scan's points in firing (= azimuth) order.
+    pub ring_points: Vec<Vec<u32>>,
+    /// Per ring × column, the index of the return there (the last one if several).
+    cells: Vec<u32>,
+    /// Per point: its column, its range, and whether it passed the weak-return filter.
+    pub column: Vec<u16>,
+    /// See `column`.
+    pub range: Vec<f32>,
+    /// See `column`.
+    pub valid: Vec<bool>,
+    /// Per point: calibrated reflectivity η, or NaN where no normal could be estimated.
+    pub eta: Vec<f32>,
+    /// Per point: reflectivity above 100 (a retro-reflector).
+    pub retro: Vec<bool>,
+}
+
+impl RangeImage {
+    /// Fills the image from a sweep and calibrates every return.
+    pub fn build(&mut self, scan: &Scan<'_>, config: &CalibrationConfig) {
+        let n = scan.points.len();
+        self.rings = scan.rings.max(1);
+        self.ring_points.resize_with(self.rings, Vec::new);
+        for r in &mut self.ring_points {
+            r.clear();
+        }
+        self.cells.clear();
+        self.cells.resize(self.rings * COLUMNS, EMPTY);
+        for v in [&mut self.range, &mut self.eta] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+        self.column.clear();
+        self.column.resize(n, 0);
+        self.valid.clear();
+        self.valid.resize(n, false);
+        self.retro.clear();
+        self.retro.resize(n, false);
+
+        for (i, p) in scan.points.iter().enumerate() {
+            let [x, y, z] = p.position;
+            let range = (x * x + y * y + z * z).sqrt();
+            let ring = usize::from(p.ring);
+            if !range.is_finite() || range <= 0.0 || ring >= self.rings {
+                continue;
+            }
+            // Clockwise from +x, as the sensor counts azimuth.
+            let azimuth = (-y).atan2(x).rem_euclid(std::f32::consts::TAU);
+            let column =
+                ((azimuth / std::f32::consts::TAU * COLUMNS as f32) as usize).min(COLUMNS - 1);
+            self.range[i] = range;
+            self.column[i] = column as u16;
+            self.retro[i] = p.reflectivity > 100;
+            self.valid[i] = p.reflectivity >= config.min_reflectivity;
+            self.ring_points[ring].push(i as u32);
+            self.cells[ring * COLUMNS + column] = i as u32;
+        }
+
+        for ring in 0..self.rings {
+            let members = &self.ring_points[ring];
+            for (k, &i) in members.iter().enumerate() {
+                let i = i as usize;
+                let p = &scan.points[i];
+                let raw = f32::from(p.reflectivity);
+                if self.retro[i] {
+                    self.eta[i] = raw;
+                    continue;
+                }
+                let cos = self.incidence_cos(scan, ring, k, i, config);
+                self.eta[i] = match cos {
+                    Some(c) => (raw / c.max(config.min_cos_incidence)).min(config.max_calibrated),
+                    None => f32::NAN,
+                };
+            }
+        }
+    }
+
+    /// The return at ring `ring`, column `column` (or the next column either side), if any.
+    fn at(&self, ring: usize, column: usize) -> Option<usize> {
+        [0isize, 1, -1].into_iter().find_map(|d| {
+            let c = (column as isize + d).rem_euclid(COLUMNS as isize) as usize;
+            let v = self.cells[ring * COLUMNS + c];
+            (v != EMPTY).then_some(v as usize)
+        })
+    }
+
+    /// cos α from the normal of the surface through the neighbours of point `i` (the `k`-th of
+    /// ring `ring`), if they lie on one surface.
+    fn incidence_cos(
+        &self,
+        scan: &Scan<'_>,
+        ring: usize,
+        k: usize,
+        i: usize,
+        config: &CalibrationConfig,
+    ) -> Option<f32> {
+        let pos = |j: usize| Vector3::from(scan.points[j].position);
+        let p = pos(i);
+        let range = self.range[i];
+        let members = &self.ring_points[ring];
+        // Along the ring: two points either side (a wider baseline than one averages out range
+        // noise), falling back to one side at the ends.
+        let near = |j: usize| (pos(j) - p).norm() < config.neighbour_gap * range * 4.0 + 0.05;
+        let before = (1..=2).rev().find_map(|d| {
+            k.checked_sub(d)
+                .map(|kk| members[kk] as usize)
+                .filter(|&j| near(j))
+        });
+        let after = (1..=2)
+            .rev()
+            .find_map(|d| members.get(k + d).map(|&j| j as usize).filter(|&j| near(j)));
+        let along = match (before, after) {
+            (Some(a), Some(b)) => pos(b) - pos(a),
+            (Some(a), None) => p - pos(a),
+            (None, Some(b)) => pos(b) - p,
+            (None, None) => return None,
+        };
+        // Across the rings, at the same azimuth. Floors seen at a low angle put adjacent rings
+        // far apart, so the gate is wide; the surface test is the normal's consistency.
+        let column = usize::from(self.column[i]);
+        let across_gate = |j: usize| (pos(j) - p).norm() < 0.5 * range + 0.2;
+        let up = (ring + 1 < self.rings)
+            .then(|| self.at(ring + 1, column))
+            .flatten()
+            .filter(|&j| across_gate(j));
+        let down = ring
+            .checked_sub(1)
+            .and_then(|r| self.at(r, column))
+            .filter(|&j| across_gate(j));
+        let across = match (down, up) {
+            (Some(a), Some(b)) => pos(b) - pos(a),
+            (Some(a), None) => p - pos(a),
+            (None, Some(b)) => pos(b) - p,
+            (None, None) => return None,
+        };
+        let normal = along.cross(&across);
+        let norm = normal.norm();
+        if norm < 1e-9 {
+            return None;
+        }
+        Some((p.dot(&normal) / (norm * range)).abs())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scan::ScanPoint;
+
+    /// Rings of a VLP-16 hitting a flat floor 1 m below, with reflectivity 100·ρ·cos α.
+    fn floor_scan(rho: f32) -> Vec<ScanPoint> {
+        let mut pts = Vec::new();
+        for c in 0..1800 {
+            let az = c as f32 * 0.2f32.to_radians();
+            // Down to −10°: the floor's incidence stays under the 80° floor on cos α.
+            for (ring, el) in [-15.0f32, -13.0, -11.0, -10.0].iter().enumerate() {
+                let el = el.to_radians();
+                let dir = Vector3::new(el.cos() * az.cos(), -el.cos() * az.sin(), el.sin());
+                let range = -1.0 / dir.z;
+                let cos_alpha = -dir.z;
+                pts.push(ScanPoint {
+                    position: (dir * range).into(),
+                    time_ns: c as u64,
+                    reflectivity: (100.0 * rho * cos_alpha).round() as u8,
+                    ring: ring as u8,
+                });
+            }
+        }
+        pts
+    }
+
+    #[test]
+    fn calibration_removes_the_incidence_angle() {
+        let pts = floor_scan(0.6);
+        let scan = Scan {
+            points: &pts,
+            rings: 4,
+            reference_ns: 0,
+        };
+        let mut image = RangeImage::default();
+        image.build(&scan, &CalibrationConfig::default());
+        let etas: Vec<f32> = image
+            .eta
+            .iter()
+            .copied()
+            .filter(|e| e.is_finite())
+            .collect();
+        assert!(etas.len() > pts.len() * 9 / 10);
+        // Raw values range from 100·0.6·sin 10° ≈ 10 to 100·0.6·sin 15° ≈ 16; calibrated ≈ 60,
+        // up to the rounding of the raw value (±0.5 / cos α).
+        for e in etas {
+            assert!((e - 60.0).abs() < 4.0, "{e}");
+        }
+    }
+
+    #[test]
+    fn retro_reflectors_keep_their_value_and_weak_returns_are_invalid() {
+        let mut pts = floor_scan(0.5);
+        pts[100].reflectivity = 200;
+        pts[101].reflectivity = 0;
+        let scan = Scan {
+            points: &pts,
+            rings: 4,
+            reference_ns: 0,
+        };
+        let mut image = RangeImage::default();
+        image.build(&scan, &CalibrationConfig::default());
+        assert!(image.retro[100] && image.eta[100] == 200.0);
+        assert!(!image.valid[101]);
+    }
+}

@@ -1,0 +1,201 @@
+//! Every parameter of the odometry in one place, grouped by the step of `method.md` it belongs
+//! to, with defaults that work on a VLP-16 at 10 Hz. Each stage receives only its own section.
+
+/// Step 1: intensity calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CalibrationConfig {
+    /// Floor on cos α, so grazing returns do not explode (cos 80°).
+    pub min_cos_incidence: f32,
+    /// Returns with a raw reflectivity below this are weak (noisy range): dropped.
+    pub min_reflectivity: u8,
+    /// Neighbours farther apart than this fraction of the range are not on the same surface.
+    pub neighbour_gap: f32,
+    /// Calibrated values are clamped to this (diffuse surfaces report at most 100).
+    pub max_calibrated: f32,
+}
+
+impl Default for CalibrationConfig {
+    fn default() -> Self {
+        Self {
+            min_cos_incidence: 0.17,
+            min_reflectivity: 1,
+            neighbour_gap: 0.05,
+            max_calibrated: 150.0,
+        }
+    }
+}
+
+/// Step 2: salient points.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FeatureConfig {
+    /// Neighbours on each side used for roughness.
+    pub neighbours: usize,
+    /// Sectors per ring, each with its own caps.
+    pub sectors: usize,
+    /// Weight of the geometric roughness σᴳ (LOAM's normalised curvature). Its scale: a 90°
+    /// corner seen at the VLP-16's 0.2° step gives ≈ 0.0074; range noise of 1.5 cm on a plane
+    /// gives ≈ 0.0047 / r.
+    pub geometric_weight: f32,
+    /// Weight of the intensity roughness σᴵ (mean |Δη| / 100). Zero without intensity. A
+    /// painted edge of 60 units gives σᴵ ≈ 0.3, so 0.03 ranks it with a geometric corner.
+    pub intensity_weight: f32,
+    /// σ above which a point may be an edge.
+    pub edge_threshold: f32,
+    /// σᴳ below which a point may be planar (the map-side plane check does the rest).
+    pub plane_threshold: f32,
+    /// Edges kept per sector.
+    pub edges_per_sector: usize,
+    /// Returns nearer than this are the robot or noise.
+    pub min_range: f32,
+    /// Returns farther than this are too sparse to describe a surface.
+    pub max_range: f32,
+    /// Planar points are thinned to one per voxel of this size (m).
+    pub plane_voxel: f32,
+    /// Intensity points (largest σᴵ) kept per sweep for the intensity residual.
+    pub max_intensity_points: usize,
+    /// σᴵ below which a point carries no intensity gradient worth matching.
+    pub intensity_roughness_threshold: f32,
+}
+
+impl Default for FeatureConfig {
+    fn default() -> Self {
+        Self {
+            neighbours: 5,
+            sectors: 6,
+            geometric_weight: 1.0,
+            intensity_weight: 0.03,
+            edge_threshold: 0.004,
+            plane_threshold: 0.003,
+            edges_per_sector: 20,
+            min_range: 0.8,
+            max_range: 90.0,
+            plane_voxel: 0.5,
+            max_intensity_points: 1500,
+            intensity_roughness_threshold: 0.05,
+        }
+    }
+}
+
+/// Step 3: the intensity map.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IntensityMapConfig {
+    /// Voxel edge, m.
+    pub voxel: f32,
+    /// Cap on the running mean's count, so the map can follow changes.
+    pub max_count: u16,
+    /// Sum of trilinear weights of observed corners needed for a lookup.
+    pub min_weight: f32,
+}
+
+impl Default for IntensityMapConfig {
+    fn default() -> Self {
+        Self {
+            voxel: 0.2,
+            max_count: 20,
+            min_weight: 0.5,
+        }
+    }
+}
+
+/// Step 4: the local edge and plane maps.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LocalMapConfig {
+    /// Hash cell edge, m (neighbour search looks at the 27 cells around a query).
+    pub cell: f32,
+    /// Points kept per cell.
+    pub points_per_cell: usize,
+    /// Map points closer than this to an existing one in their cell are not added, m.
+    pub min_spacing: f32,
+    /// Cells farther than this from the robot are dropped, m.
+    pub radius: f32,
+}
+
+impl Default for LocalMapConfig {
+    fn default() -> Self {
+        Self {
+            cell: 1.0,
+            points_per_cell: 20,
+            min_spacing: 0.2,
+            radius: 80.0,
+        }
+    }
+}
+
+/// Step 4: the scan-to-map solver.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SolverConfig {
+    /// Associate, then solve: this many times per sweep.
+    pub outer_iterations: usize,
+    /// Levenberg–Marquardt steps per association.
+    pub inner_iterations: usize,
+    /// Nearest map neighbours used for a line or a plane.
+    pub neighbours: usize,
+    /// The farthest neighbour may be this far, m.
+    pub max_neighbour_distance: f32,
+    /// A line needs its largest covariance eigenvalue this many times the second.
+    pub line_ratio: f64,
+    /// Every plane neighbour must lie within this of the plane, m. (F-LOAM's 0.2 m lets a
+    /// neighbourhood straddling a floor and a wall pass as a tilted plane, which biases height.)
+    pub plane_tolerance: f64,
+    /// Huber threshold of the geometric residuals, m.
+    pub huber_geometric: f64,
+    /// Use the intensity residual.
+    pub use_intensity: bool,
+    /// Weight turning reflectivity units into the metres of the geometric residuals.
+    pub intensity_weight: f64,
+    /// Huber threshold of the weighted intensity residual.
+    pub huber_intensity: f64,
+    /// Stop when an update moves less than this (rad and m).
+    pub convergence: f64,
+    /// Fewer geometric correspondences than this: the sweep is not trusted (lost).
+    pub min_correspondences: usize,
+    /// The smallest eigenvalue of the geometric normal equations per correspondence below
+    /// which the pose is reported degenerate.
+    pub degeneracy_threshold: f64,
+}
+
+impl Default for SolverConfig {
+    fn default() -> Self {
+        Self {
+            outer_iterations: 5,
+            inner_iterations: 2,
+            neighbours: 5,
+            max_neighbour_distance: 1.5,
+            line_ratio: 3.0,
+            plane_tolerance: 0.05,
+            huber_geometric: 0.1,
+            use_intensity: true,
+            intensity_weight: 0.01,
+            huber_intensity: 0.1,
+            convergence: 1e-4,
+            min_correspondences: 30,
+            degeneracy_threshold: 0.02,
+        }
+    }
+}
+
+/// The whole odometry.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct OdometryConfig {
+    /// Step 1.
+    pub calibration: CalibrationConfig,
+    /// Step 2.
+    pub features: FeatureConfig,
+    /// Step 3.
+    pub intensity_map: IntensityMapConfig,
+    /// Step 4, maps.
+    pub local_map: LocalMapConfig,
+    /// Step 4, solver.
+    pub solver: SolverConfig,
+}
+
+impl OdometryConfig {
+    /// The ablation without intensity: no intensity roughness in feature selection and no
+    /// intensity residual (geometry only, as LOAM).
+    pub fn geometry_only() -> Self {
+        let mut c = Self::default();
+        c.features.intensity_weight = 0.0;
+        c.solver.use_intensity = false;
+        c
+    }
+}

@@ -1,0 +1,327 @@
+//! Step 2 of the method: salient points. Along each ring, a return's roughness is
+//! σ = wᴳσᴳ + wᴵσᴵ, with σᴳ LOAM's range-invariant curvature `|Σⱼ(pⱼ − pᵢ)| / (2k·|pᵢ|)` and σᴵ
+//! the mean |ηⱼ − ηᵢ| / 100 of the calibrated reflectivity. Each ring is split into sectors; in
+//! each, the roughest returns become edges (neighbours suppressed), the geometrically smooth ones
+//! planes (thinned by a voxel grid), and the ones with the largest σᴵ intensity points. LOAM's
+//! rejection rules drop returns at occlusion boundaries and on surfaces seen edge-on.
+
+use std::collections::HashSet;
+
+use crate::calibration::RangeImage;
+use crate::config::FeatureConfig;
+use crate::scan::Scan;
+
+/// A selected return: its position in the sensor frame at its firing, its time relative to the
+/// sweep's reference time (s, ≤ 0) and its calibrated reflectivity (NaN if unknown).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Feature {
+    /// Position at firing, sensor frame, m.
+    pub position: [f32; 3],
+    /// Firing time minus the reference time, s.
+    pub dt: f32,
+    /// Calibrated reflectivity η.
+    pub eta: f32,
+}
+
+/// The features of one sweep: what the front end hands the odometry.
+#[derive(Debug, Default, Clone)]
+pub struct SweepFeatures {
+    /// The instant the sweep's pose describes, ns since the epoch.
+    pub reference_ns: u64,
+    /// Returns in the sweep, before selection.
+    pub returns: usize,
+    /// Edges (geometric corners and intensity boundaries).
+    pub edges: Vec<Feature>,
+    /// Planar returns, one per voxel.
+    pub planes: Vec<Feature>,
+    /// Returns with the largest intensity roughness, for the intensity residual.
+    pub intensity: Vec<Feature>,
+    /// Every valid calibrated return, for the intensity map.
+    pub calibrated: Vec<Feature>,
+}
+
+/// Selects features; owns the buffers it reuses from sweep to sweep.
+#[derive(Debug, Default, Clone)]
+pub struct FeatureSelector {
+    roughness: Vec<(f32, f32, u32)>,
+    /// Returns LOAM's rules reject (occlusion boundaries, surfaces seen edge-on).
+    unreliable: Vec<bool>,
+    /// Returns next to a chosen edge.
+    suppressed: Vec<bool>,
+    voxels: HashSet<(i32, i32, i32)>,
+    candidates: Vec<(f32, u32)>,
+}
+
+impl FeatureSelector {
+    /// Selects the features of `scan`, whose returns `image` has calibrated, into `out`.
+    pub fn select(
+        &mut self,
+        scan: &Scan<'_>,
+        image: &RangeImage,
+        config: &FeatureConfig,
+        out: &mut SweepFeatures,
+    ) {
+        out.reference_ns = scan.reference_ns;
+        out.returns = scan.points.len();
+        out.edges.clear();
+        out.planes.clear();
+        out.intensity.clear();
+        out.calibrated.clear();
+        self.voxels.clear();
+        self.candidates.clear();
+        let n = scan.points.len();
+        for flags in [&mut self.unreliable, &mut self.suppressed] {
+            flags.clear();
+            flags.resize(n, false);
+        }
+        let feature = |i: usize| {
+            let p = &scan.points[i];
+            let dt = (p.time_ns as f64 - scan.reference_ns as f64) * 1e-9;
+            Feature {
+                position: p.position,
+                dt: dt as f32,
+                eta: image.eta[i],
+            }
+        };
+        let k = config.neighbours.max(1);
+        let usable = |i: usize| {
+            image.valid[i]
+                && image.range[i] >= config.min_range
+                && image.range[i] <= config.max_range
+        };
+        for (i, _) in scan.points.iter().enumerate() {
+            if usable(i) && image.eta[i].is_finite() {
+                out.calibrated.push(feature(i));
+            }
+        }
+
+        for members in &image.ring_points {
+            if members.len() < 2 * k + 1 {
+                continue;
+            }
+            self.roughness.clear();
+            let pos = |j: u32| scan.points[j as usize].position;
+            // Rejection rules (LOAM): a depth jump to a neighbour makes the returns on the far
+            // side unreliable (they may be occluded next sweep); a return much nearer or farther
+            // than both neighbours lies on a surface seen edge-on.
+            for w in 1..members.len() {
+                let (a, b) = (members[w - 1] as usize, members[w] as usize);
+                let (ra, rb) = (image.range[a], image.range[b]);
+                let gap = dist(pos(members[w - 1]), pos(members[w]));
+                if gap > 0.1 * ra.min(rb) + 0.1 {
+                    let (far_start, step): (usize, isize) =
+                        if ra > rb { (w - 1, -1) } else { (w, 1) };
+                    for s in 0..k {
+                        let idx = far_start as isize + step * s as isize;
+                        if let Some(&m) = usize::try_from(idx).ok().and_then(|x| members.get(x)) {
+                            self.unreliable[m as usize] = true;
+                        }
+                    }
+                }
+            }
+            for w in 1..members.len() - 1 {
+                let (a, b, c) = (
+                    members[w - 1] as usize,
+                    members[w] as usize,
+                    members[w + 1] as usize,
+                );
+                let rb = image.range[b];
+                if (image.range[a] - rb).abs() > 0.02 * rb
+                    && (image.range[c] - rb).abs() > 0.02 * rb
+                {
+                    self.unreliable[b] = true;
+                }
+            }
+            for w in k..members.len() - k {
+                let i = members[w] as usize;
+                if !usable(i) {
+                    continue;
+                }
+                let p = pos(members[w]);
+                // The window must be contiguous: no gap wider than a few steps.
+                let span = dist(pos(members[w - k]), pos(members[w + k]));
+                if span > (2 * k) as f32 * 0.02 * image.range[i] + 0.5 {
+                    continue;
+                }
+                let mut sum = [0f32; 3];
+                let mut eta_diff = 0f32;
+                let mut eta_count = 0;
+                for j in (w - k..=w + k).filter(|&j| j != w) {
+                    let q = pos(members[j]);
+                    for a in 0..3 {
+                        sum[a] += q[a] - p[a];
+                    }
+                    let (ei, ej) = (image.eta[i], image.eta[members[j] as usize]);
+                    if ei.is_finite() && ej.is_finite() {
+                        eta_diff += (ej - ei).abs();
+                        eta_count += 1;
+                    }
+                }
+                let geometric = norm(sum) / ((2 * k) as f32 * image.range[i]);
+                let intensity = if eta_count > 0 {
+                    eta_diff / (eta_count as f32 * 100.0)
+                } else {
+                    0.0
+                };
+                self.roughness.push((geometric, intensity, w as u32));
+            }
+
+            let sectors = config.sectors.max(1);
+            let per = self.roughness.len().div_ceil(sectors).max(1);
+            for sector in 0..sectors {
+                let lo = sector * per;
+                let hi = ((sector + 1) * per).min(self.roughness.len());
+                if lo >= hi {
+                    continue;
+                }
+                let slice = &mut self.roughness[lo..hi];
+                let combined = |&(g, i, _): &(f32, f32, u32)| {
+                    config.geometric_weight * g + config.intensity_weight * i
+                };
+                slice.sort_unstable_by(|a, b| combined(b).total_cmp(&combined(a)));
+                let mut edges = 0;
+                for entry in slice.iter() {
+                    if edges >= config.edges_per_sector || combined(entry) <= config.edge_threshold
+                    {
+                        break;
+                    }
+                    let w = entry.2 as usize;
+                    let i = members[w] as usize;
+                    if self.unreliable[i] || self.suppressed[i] {
+                        continue;
+                    }
+                    out.edges.push(feature(i));
+                    edges += 1;
+                    // Suppress neighbours so edges spread along the ring.
+                    for j in w.saturating_sub(k)..(w + k + 1).min(members.len()) {
+                        self.suppressed[members[j] as usize] = true;
+                    }
+                }
+                for &(g, rough_i, w) in slice.iter() {
+                    let i = members[w as usize] as usize;
+                    if self.unreliable[i] {
+                        continue;
+                    }
+                    if g < config.plane_threshold && !self.suppressed[i] {
+                        let p = scan.points[i].position;
+                        let s = config.plane_voxel;
+                        let key = (
+                            (p[0] / s).floor() as i32,
+                            (p[1] / s).floor() as i32,
+                            (p[2] / s).floor() as i32,
+                        );
+                        if self.voxels.insert(key) {
+                            out.planes.push(feature(i));
+                        }
+                    }
+                    if rough_i > config.intensity_roughness_threshold && image.eta[i].is_finite() {
+                        self.candidates.push((rough_i, i as u32));
+                    }
+                }
+            }
+        }
+        // The strongest intensity gradients, capped.
+        let cap = config.max_intensity_points.min(self.candidates.len());
+        if cap < self.candidates.len() {
+            self.candidates
+                .select_nth_unstable_by(cap, |a, b| b.0.total_cmp(&a.0));
+        }
+        for &(_, i) in &self.candidates[..cap] {
+            out.intensity.push(feature(i as usize));
+        }
+    }
+}
+
+fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
+    norm([a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+}
+
+fn norm(v: [f32; 3]) -> f32 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::CalibrationConfig;
+    use crate::scan::ScanPoint;
+
+    /// One ring sweeping two walls meeting at a corner (x = 5 and y = 5), with a painted stripe
+    /// on the first wall.
+    fn corner_scan() -> Vec<ScanPoint> {
+        let mut pts = Vec::new();
+        for ring in 0..2u8 {
+            let el = (f32::from(ring) * 2.0 - 1.0).to_radians();
+            for c in 0..450 {
+                // Azimuth from 0° (+x) to −90° (+y) clockwise, i.e. counter-clockwise here.
+                let az = -(c as f32) * 0.2f32.to_radians();
+                let dir = [el.cos() * az.cos(), -el.cos() * az.sin(), el.sin()];
+                let t_x = 5.0 / dir[0];
+                let t_y = 5.0 / dir[1];
+                let t = if dir[1] <= 0.0 || t_x < t_y { t_x } else { t_y };
+                let p = [dir[0] * t, dir[1] * t, dir[2] * t];
+                let on_stripe = p[1] > 1.0 && p[1] < 1.3 && t == t_x;
+                pts.push(ScanPoint {
+                    position: p,
+                    time_ns: c as u64 * 55_296,
+                    reflectivity: if on_stripe { 90 } else { 20 },
+                    ring,
+                });
+            }
+        }
+        pts
+    }
+
+    #[test]
+    fn corner_is_an_edge_and_walls_are_planes() {
+        let pts = corner_scan();
+        let scan = Scan {
+            points: &pts,
+            rings: 2,
+            reference_ns: 449 * 55_296,
+        };
+        let mut image = RangeImage::default();
+        image.build(&scan, &CalibrationConfig::default());
+        let mut f = SweepFeatures::default();
+        let config = FeatureConfig {
+            intensity_weight: 0.0,
+            ..FeatureConfig::default()
+        };
+        FeatureSelector::default().select(&scan, &image, &config, &mut f);
+        assert!(!f.planes.is_empty());
+        assert!(
+            f.edges
+                .iter()
+                .any(|e| (e.position[0] - 5.0).abs() < 0.1 && (e.position[1] - 5.0).abs() < 0.2),
+            "{:?}",
+            f.edges
+        );
+        for e in &f.edges {
+            let at_corner = (e.position[0] - 5.0).abs() < 0.1 && (e.position[1] - 5.0).abs() < 0.5;
+            assert!(at_corner, "geometry-only edge away from the corner: {e:?}");
+        }
+        assert!(f.edges.iter().all(|e| e.dt <= 0.0));
+    }
+
+    #[test]
+    fn intensity_roughness_finds_the_stripe() {
+        let pts = corner_scan();
+        let scan = Scan {
+            points: &pts,
+            rings: 2,
+            reference_ns: 449 * 55_296,
+        };
+        let mut image = RangeImage::default();
+        image.build(&scan, &CalibrationConfig::default());
+        let mut f = SweepFeatures::default();
+        FeatureSelector::default().select(&scan, &image, &FeatureConfig::default(), &mut f);
+        let near_stripe = |p: [f32; 3]| {
+            (p[0] - 5.0).abs() < 0.05 && ((p[1] - 1.0).abs() < 0.2 || (p[1] - 1.3).abs() < 0.2)
+        };
+        assert!(f.intensity.iter().any(|e| near_stripe(e.position)));
+        assert!(
+            f.edges.iter().any(|e| near_stripe(e.position)),
+            "with wᴵ > 0 the stripe's boundaries are edges"
+        );
+    }
+}

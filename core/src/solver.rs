@@ -1,0 +1,564 @@
+//! Step 4 of the method: scan-to-map matching, and step 5: degeneracy. Minimises over the pose
+//! T ∈ SE(3) a robust (Huber) least-squares sum of
+//! - point-to-line distances of edge points to lines fitted through their nearest map edges,
+//! - point-to-plane distances of planar points to planes fitted through their nearest map planes,
+//! - intensity differences `w·(η − M(T·p))` against the trilinear intensity map,
+//!
+//! by Levenberg–Marquardt on a left perturbation `T ← exp(δ)·T`, re-associating the geometric
+//! correspondences between rounds. (The paper writes a sum of absolute values and solves least
+//! squares; this is robust least squares, said plainly.) Degeneracy is read off the eigenvalues
+//! of the translational block of the geometric normal equations, normalised per correspondence.
+
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
+
+use crate::config::SolverConfig;
+use crate::intensity_map::IntensityMap;
+use crate::local_map::LocalMap;
+use crate::se3::{exp, skew};
+
+/// The points to align, in the sensor frame at the sweep's reference time.
+#[derive(Debug, Default, Clone)]
+pub struct AlignmentInput {
+    /// Edge points.
+    pub edges: Vec<Vector3<f64>>,
+    /// Planar points.
+    pub planes: Vec<Vector3<f64>>,
+    /// Points with their calibrated reflectivity, for the intensity residual.
+    pub intensity: Vec<(Vector3<f64>, f64)>,
+}
+
+/// The maps to align against.
+#[derive(Debug, Clone, Copy)]
+pub struct MapView<'a> {
+    /// Edge points.
+    pub edges: &'a LocalMap,
+    /// Planar points.
+    pub planes: &'a LocalMap,
+    /// Reflectivity.
+    pub intensity: &'a IntensityMap,
+}
+
+/// What the alignment found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Alignment {
+    /// The pose (sensor at the reference time → world).
+    pub pose: Isometry3<f64>,
+    /// Correspondences used in the last round.
+    pub edges: usize,
+    /// See `edges`.
+    pub planes: usize,
+    /// See `edges`.
+    pub intensity: usize,
+    /// Smallest eigenvalue of the geometric translational information per correspondence, in
+    /// [0, 1/3]: near 0 when some direction of travel is unconstrained by geometry.
+    pub degeneracy: f64,
+    /// The direction (world frame) geometry constrains least.
+    pub weakest_direction: Vector3<f64>,
+    /// Whether `degeneracy` is below the configured threshold.
+    pub degenerate: bool,
+    /// Levenberg–Marquardt steps taken.
+    pub iterations: usize,
+    /// Mean robust cost per residual at the end.
+    pub cost: f64,
+}
+
+/// A geometric correspondence fixed for one round: residual `e = P·(T·p − c)`, where `P` is the
+/// projection onto the line's normal space (edges) or onto the plane normal (planes).
+#[derive(Debug, Clone, Copy)]
+struct Model {
+    point: Vector3<f64>,
+    center: Vector3<f64>,
+    projection: Matrix3<f64>,
+}
+
+/// Aligns `input` to `maps` starting from `initial`.
+pub fn align(
+    initial: &Isometry3<f64>,
+    input: &AlignmentInput,
+    maps: MapView<'_>,
+    config: &SolverConfig,
+) -> Alignment {
+    let mut pose = *initial;
+    let mut models = Vec::with_capacity(input.edges.len() + input.planes.len());
+    let mut neighbours = Vec::with_capacity(8);
+    let mut lambda = 1e-4;
+    let mut iterations = 0;
+    let mut edges = 0;
+    let mut planes = 0;
+    for _ in 0..config.outer_iterations.max(1) {
+        let round_start = pose;
+        models.clear();
+        edges = associate_edges(
+            &pose,
+            &input.edges,
+            maps.edges,
+            config,
+            &mut neighbours,
+            &mut models,
+        );
+        planes = associate_planes(
+            &pose,
+            &input.planes,
+            maps.planes,
+            config,
+            &mut neighbours,
+            &mut models,
+        );
+        let mut converged = false;
+        for _ in 0..config.inner_iterations.max(1) {
+            let system = build(&pose, &models, input, maps.intensity, config);
+            if system.count == 0 {
+                break;
+            }
+            // Levenberg–Marquardt: retry with more damping until the cost drops.
+            let mut accepted = false;
+            let eigen = SymmetricEigen::new(system.hessian);
+            let largest = eigen.eigenvalues.max().max(1e-12);
+            for _ in 0..6 {
+                let step = damped_step(&eigen, &system.gradient, lambda, largest);
+                let candidate = exp(&step) * pose;
+                let cost = build(&candidate, &models, input, maps.intensity, config).cost;
+                iterations += 1;
+                if cost <= system.cost {
+                    pose = candidate;
+                    lambda = (lambda / 3.0).max(1e-7);
+                    accepted = true;
+                    converged = step.norm() < config.convergence;
+                    break;
+                }
+                lambda *= 4.0;
+            }
+            if !accepted || converged {
+                break;
+            }
+        }
+        // Another round only if this one moved the pose: new correspondences could differ.
+        if crate::se3::log(&(round_start.inverse() * pose)).norm() < config.convergence {
+            break;
+        }
+    }
+    let system = build(&pose, &models, input, maps.intensity, config);
+    let geometric = models.len().max(1) as f64;
+    let translational = system.geometric_translation / geometric;
+    let eigen = SymmetricEigen::new(translational);
+    let (weakest, degeneracy) = eigen
+        .eigenvalues
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(b.1))
+        .map(|(i, &v)| (eigen.eigenvectors.column(i).into_owned(), v.max(0.0)))
+        .unwrap_or((Vector3::x(), 0.0));
+    Alignment {
+        pose,
+        edges,
+        planes,
+        intensity: system.intensity,
+        degeneracy,
+        weakest_direction: weakest,
+        degenerate: degeneracy < config.degeneracy_threshold,
+        iterations,
+        cost: system.cost / system.count.max(1) as f64,
+    }
+}
+
+/// The Levenberg–Marquardt step in the Hessian's eigenbasis. Directions whose information is a
+/// negligible fraction of the largest carry no measurement (a corridor's axis without intensity,
+/// height between walls): they get no step, so the pose there stays at the prediction instead
+/// of following numerical noise.
+fn damped_step(
+    eigen: &SymmetricEigen<f64, nalgebra::U6>,
+    gradient: &Vector6<f64>,
+    lambda: f64,
+    largest: f64,
+) -> Vector6<f64> {
+    let mut step = Vector6::zeros();
+    for i in 0..6 {
+        let value = eigen.eigenvalues[i];
+        if value <= NULL_INFORMATION * largest {
+            continue;
+        }
+        let v = eigen.eigenvectors.column(i);
+        step -= v * (v.dot(gradient) / (value * (1.0 + lambda)));
+    }
+    step
+}
+
+/// Information below this fraction of the strongest direction's is treated as none.
+const NULL_INFORMATION: f64 = 1e-6;
+
+fn associate_edges(
+    pose: &Isometry3<f64>,
+    points: &[Vector3<f64>],
+    map: &LocalMap,
+    config: &SolverConfig,
+    neighbours: &mut Vec<Vector3<f32>>,
+    models: &mut Vec<Model>,
+) -> usize {
+    let mut count = 0;
+    for p in points {
+        let q = pose * Point3::from(*p);
+        map.nearest(
+            &q.coords.cast(),
+            config.neighbours,
+            config.max_neighbour_distance,
+            neighbours,
+        );
+        if neighbours.len() < config.neighbours {
+            continue;
+        }
+        let (center, eigen) = covariance(neighbours);
+        let mut order = [0, 1, 2];
+        order.sort_by(|&a, &b| eigen.eigenvalues[b].total_cmp(&eigen.eigenvalues[a]));
+        let (l1, l2) = (eigen.eigenvalues[order[0]], eigen.eigenvalues[order[1]]);
+        if l1 < config.line_ratio * l2 {
+            continue;
+        }
+        let direction: Vector3<f64> = eigen.eigenvectors.column(order[0]).into_owned();
+        models.push(Model {
+            point: *p,
+            center,
+            projection: Matrix3::identity() - direction * direction.transpose(),
+        });
+        count += 1;
+    }
+    count
+}
+
+fn associate_planes(
+    pose: &Isometry3<f64>,
+    points: &[Vector3<f64>],
+    map: &LocalMap,
+    config: &SolverConfig,
+    neighbours: &mut Vec<Vector3<f32>>,
+    models: &mut Vec<Model>,
+) -> usize {
+    let mut count = 0;
+    for p in points {
+        let q = pose * Point3::from(*p);
+        map.nearest(
+            &q.coords.cast(),
+            config.neighbours,
+            config.max_neighbour_distance,
+            neighbours,
+        );
+        if neighbours.len() < config.neighbours {
+            continue;
+        }
+        let (center, eigen) = covariance(neighbours);
+        let smallest = (0..3)
+            .min_by(|&a, &b| eigen.eigenvalues[a].total_cmp(&eigen.eigenvalues[b]))
+            .unwrap_or(0);
+        let normal: Vector3<f64> = eigen.eigenvectors.column(smallest).into_owned();
+        if neighbours
+            .iter()
+            .any(|n| (n.cast::<f64>() - center).dot(&normal).abs() > config.plane_tolerance)
+        {
+            continue;
+        }
+        models.push(Model {
+            point: *p,
+            center,
+            projection: normal * normal.transpose(),
+        });
+        count += 1;
+    }
+    count
+}
+
+fn covariance(points: &[Vector3<f32>]) -> (Vector3<f64>, SymmetricEigen<f64, nalgebra::U3>) {
+    let n = points.len() as f64;
+    let center = points
+        .iter()
+        .fold(Vector3::zeros(), |acc: Vector3<f64>, p| {
+            acc + p.cast::<f64>()
+        })
+        / n;
+    let mut cov = Matrix3::zeros();
+    for p in points {
+        let d = p.cast::<f64>() - center;
+        cov += d * d.transpose();
+    }
+    (center, SymmetricEigen::new(cov / n))
+}
+
+struct System {
+    hessian: Matrix6<f64>,
+    gradient: Vector6<f64>,
+    cost: f64,
+    count: usize,
+    intensity: usize,
+    geometric_translation: Matrix3<f64>,
+}
+
+/// Huber weight and cost of a residual of norm `r` with threshold `k`.
+fn huber(r: f64, k: f64) -> (f64, f64) {
+    if r <= k {
+        (1.0, 0.5 * r * r)
+    } else {
+        (k / r, k * (r - 0.5 * k))
+    }
+}
+
+/// Normal equations (IRLS with Huber weights) at `pose`.
+fn build(
+    pose: &Isometry3<f64>,
+    models: &[Model],
+    input: &AlignmentInput,
+    intensity: &IntensityMap,
+    config: &SolverConfig,
+) -> System {
+    let mut s = System {
+        hessian: Matrix6::zeros(),
+        gradient: Vector6::zeros(),
+        cost: 0.0,
+        count: 0,
+        intensity: 0,
+        geometric_translation: Matrix3::zeros(),
+    };
+    for m in models {
+        let q = (pose * Point3::from(m.point)).coords;
+        let e = m.projection * (q - m.center);
+        let (w, cost) = huber(e.norm(), config.huber_geometric);
+        // ∂q/∂δ = [−[q]×, I]; ∂e/∂δ = P·[−[q]×, I].
+        let j_rot = -m.projection * skew(&q);
+        let mut j = nalgebra::Matrix3x6::zeros();
+        j.fixed_view_mut::<3, 3>(0, 0).copy_from(&j_rot);
+        j.fixed_view_mut::<3, 3>(0, 3).copy_from(&m.projection);
+        s.hessian += w * j.transpose() * j;
+        s.gradient += w * j.transpose() * e;
+        s.geometric_translation += m.projection.transpose() * m.projection;
+        s.cost += cost;
+        s.count += 1;
+    }
+    if config.use_intensity {
+        let weight = config.intensity_weight;
+        for (p, eta) in &input.intensity {
+            let q = (pose * Point3::from(*p)).coords;
+            let Some(sample) = intensity.sample(&q) else {
+                continue;
+            };
+            let r = weight * (eta - sample.value);
+            let (w, cost) = huber(r.abs(), config.huber_intensity);
+            // r = w·(η − M(q)) ⇒ ∂r/∂δ = −w·∇Mᵀ·[−[q]×, I].
+            let g = -weight * sample.gradient;
+            let j_rot = -(g.transpose() * skew(&q));
+            let j = Vector6::new(j_rot[0], j_rot[1], j_rot[2], g.x, g.y, g.z);
+            s.hessian += w * j * j.transpose();
+            s.gradient += w * j * r;
+            s.cost += cost;
+            s.count += 1;
+            s.intensity += 1;
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{IntensityMapConfig, LocalMapConfig};
+    use crate::se3::log;
+
+    /// A box room (planes at x = ±6, y = ±4, z = 0 and 3) with edges along its vertical corners.
+    fn room() -> (LocalMap, LocalMap, Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+        let mut planes = LocalMap::new(&LocalMapConfig::default());
+        let mut edges = LocalMap::new(&LocalMapConfig {
+            min_spacing: 0.05,
+            ..LocalMapConfig::default()
+        });
+        let mut plane_pts = Vec::new();
+        let mut edge_pts = Vec::new();
+        let step = 0.25;
+        for i in 0..=48 {
+            for j in 0..=12 {
+                let (a, b) = (-6.0 + i as f64 * step, j as f64 * step);
+                for p in [Vector3::new(a, -4.0, b), Vector3::new(a, 4.0, b)] {
+                    plane_pts.push(p);
+                }
+            }
+        }
+        for i in 0..=32 {
+            for j in 0..=12 {
+                let (a, b) = (-4.0 + i as f64 * step, j as f64 * step);
+                plane_pts.push(Vector3::new(-6.0, a, b));
+                plane_pts.push(Vector3::new(6.0, a, b));
+            }
+        }
+        for i in 0..=48 {
+            for j in 0..=32 {
+                plane_pts.push(Vector3::new(
+                    -6.0 + i as f64 * step,
+                    -4.0 + j as f64 * step,
+                    0.0,
+                ));
+            }
+        }
+        for k in 0..=30 {
+            for (x, y) in [(-6.0, -4.0), (-6.0, 4.0), (6.0, -4.0), (6.0, 4.0)] {
+                edge_pts.push(Vector3::new(x, y, k as f64 * 0.1));
+            }
+        }
+        for p in &plane_pts {
+            planes.insert(p.cast());
+        }
+        for p in &edge_pts {
+            edges.insert(p.cast());
+        }
+        (edges, planes, edge_pts, plane_pts)
+    }
+
+    #[test]
+    fn recovers_a_known_offset() {
+        let (edges, planes, edge_pts, plane_pts) = room();
+        let intensity = IntensityMap::new(&IntensityMapConfig::default());
+        let truth = exp(&Vector6::new(0.01, -0.02, 0.05, 0.3, -0.2, 0.05));
+        // The scan sees the room from the true pose: its points are truth⁻¹·world.
+        let inverse = truth.inverse();
+        let input = AlignmentInput {
+            edges: edge_pts
+                .iter()
+                .step_by(3)
+                .map(|p| (inverse * Point3::from(*p)).coords)
+                .collect(),
+            planes: plane_pts
+                .iter()
+                .step_by(7)
+                .map(|p| (inverse * Point3::from(*p)).coords)
+                .collect(),
+            intensity: Vec::new(),
+        };
+        let maps = MapView {
+            edges: &edges,
+            planes: &planes,
+            intensity: &intensity,
+        };
+        let a = align(
+            &Isometry3::identity(),
+            &input,
+            maps,
+            &SolverConfig::default(),
+        );
+        let error = log(&(a.pose.inverse() * truth));
+        assert!(error.norm() < 1e-4, "error {error}, {a:?}");
+        assert!(!a.degenerate, "{}", a.degeneracy);
+    }
+
+    #[test]
+    fn a_corridor_is_degenerate_along_its_axis() {
+        // Two walls and a floor, all parallel to x.
+        let mut planes = LocalMap::new(&LocalMapConfig::default());
+        let mut pts = Vec::new();
+        for i in 0..200 {
+            for j in 0..12 {
+                let x = -25.0 + i as f64 * 0.25;
+                let h = j as f64 * 0.25;
+                pts.extend([
+                    Vector3::new(x, -1.75, h),
+                    Vector3::new(x, 1.75, h),
+                    Vector3::new(x, -1.75 + h, 0.0),
+                ]);
+            }
+        }
+        for p in &pts {
+            planes.insert(p.cast());
+        }
+        let edges = LocalMap::new(&LocalMapConfig::default());
+        let intensity = IntensityMap::new(&IntensityMapConfig::default());
+        let input = AlignmentInput {
+            edges: vec![],
+            planes: pts.iter().step_by(5).copied().collect(),
+            intensity: vec![],
+        };
+        let maps = MapView {
+            edges: &edges,
+            planes: &planes,
+            intensity: &intensity,
+        };
+        let a = align(
+            &Isometry3::identity(),
+            &input,
+            maps,
+            &SolverConfig::default(),
+        );
+        assert!(a.degenerate, "{}", a.degeneracy);
+        assert!(
+            a.weakest_direction.x.abs() > 0.99,
+            "{}",
+            a.weakest_direction
+        );
+    }
+
+    #[test]
+    fn intensity_resolves_the_corridor_axis() {
+        // The same corridor, with reflectivity stripes on the walls every 2 m along x.
+        let mut planes = LocalMap::new(&LocalMapConfig::default());
+        let mut map = IntensityMap::new(&IntensityMapConfig::default());
+        let stripe = |x: f64| if x.rem_euclid(2.0) < 0.6 { 80.0 } else { 20.0 };
+        for i in 0..500 {
+            for j in 0..30 {
+                let x = -25.0 + i as f64 * 0.1;
+                let h = 0.1 + j as f64 * 0.1;
+                for y in [-1.75, 1.75] {
+                    let p = Vector3::new(x, y, h);
+                    planes.insert(p.cast());
+                    map.insert(&p.cast(), stripe(x) as f32);
+                }
+            }
+        }
+        let edges = LocalMap::new(&LocalMapConfig::default());
+        let truth = exp(&Vector6::new(0.0, 0.0, 0.0, 0.15, 0.0, 0.0));
+        let inverse = truth.inverse();
+        // The scan samples the walls on its own lattice, offset from the map's, as a sensor
+        // would: near the stripes' edges for intensity, everywhere for planes.
+        let scan: Vec<Vector3<f64>> = (0..495)
+            .flat_map(|i| {
+                (0..29).flat_map(move |j| {
+                    [-1.75, 1.75].map(|y| {
+                        Vector3::new(-24.7 + i as f64 * 0.1 + 0.037, y, 0.15 + j as f64 * 0.1)
+                    })
+                })
+            })
+            .collect();
+        let input = AlignmentInput {
+            edges: vec![],
+            planes: scan
+                .iter()
+                .step_by(11)
+                .map(|p| (inverse * Point3::from(*p)).coords)
+                .collect(),
+            intensity: scan
+                .iter()
+                .filter(|p| {
+                    let f = p.x.rem_euclid(2.0);
+                    f.min((f - 0.6).abs()).min(2.0 - f) < 0.3
+                })
+                .map(|p| ((inverse * Point3::from(*p)).coords, stripe(p.x)))
+                .collect(),
+        };
+        let maps = MapView {
+            edges: &edges,
+            planes: &planes,
+            intensity: &map,
+        };
+        let a = align(
+            &Isometry3::identity(),
+            &input,
+            maps,
+            &SolverConfig::default(),
+        );
+        assert!(
+            (a.pose.translation.vector.x - 0.15).abs() < 0.02,
+            "{}",
+            a.pose.translation.vector
+        );
+        let geometry_only = SolverConfig {
+            use_intensity: false,
+            ..SolverConfig::default()
+        };
+        let g = align(&Isometry3::identity(), &input, maps, &geometry_only);
+        assert!(
+            g.pose.translation.vector.x.abs() < 0.05,
+            "geometry alone cannot see the offset"
+        );
+    }
+}
