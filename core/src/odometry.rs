@@ -1,10 +1,10 @@
 //! The front end of the method, steps 0–5, one sweep at a time:
 //!
-//! 0. predict the pose by constant velocity and deskew the features to the sweep's reference
-//!    time with the per-point firing times;
-//! 1–2. (done before, by [`FrontEnd`]: intensity calibration and salient points);
-//! 3–4. align the features to the local edge, plane and intensity maps;
-//! 5. read the degeneracy of the geometric constraints;
+//! - step 0: predict the pose by constant velocity and deskew the features to the sweep's
+//!   reference time with the per-point firing times;
+//! - steps 1–2 (done before, by [`FrontEnd`]): intensity calibration and salient points;
+//! - steps 3–4: align the features to the local edge, plane and intensity maps;
+//! - step 5: read the degeneracy of the geometric constraints;
 //!
 //! then deskew again with the motion just estimated and grow the maps. Everything is pure: time
 //! comes with the data, and stage timing is reported through a caller's hook, never a clock.
