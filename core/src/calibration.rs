@@ -32,6 +32,9 @@ pub struct RangeImage {
     pub eta: Vec<f32>,
     /// Per point: reflectivity above 100 (a retro-reflector).
     pub retro: Vec<bool>,
+    /// Per point: azimuth, rad, clockwise from +x as the sensor counts it.
+    azimuth: Vec<f32>,
+    steps: Vec<f32>,
 }
 
 impl RangeImage {
@@ -55,6 +58,8 @@ impl RangeImage {
         self.valid.resize(n, false);
         self.retro.clear();
         self.retro.resize(n, false);
+        self.azimuth.clear();
+        self.azimuth.resize(n, 0.0);
 
         for (i, p) in scan.points.iter().enumerate() {
             let [x, y, z] = p.position;
@@ -68,6 +73,7 @@ impl RangeImage {
             let column =
                 ((azimuth / std::f32::consts::TAU * COLUMNS as f32) as usize).min(COLUMNS - 1);
             self.range[i] = range;
+            self.azimuth[i] = azimuth;
             self.column[i] = column as u16;
             self.retro[i] = p.reflectivity > 100;
             self.valid[i] = p.reflectivity >= config.min_reflectivity;
@@ -92,6 +98,26 @@ impl RangeImage {
                 };
             }
         }
+    }
+
+    /// The typical azimuth step between successive returns of a ring, rad (the median over
+    /// the sweep; 0.2° for a VLP-16 at 600 rpm). `None` for a sweep too sparse to tell.
+    pub fn azimuth_step(&mut self) -> Option<f32> {
+        self.steps.clear();
+        for members in &self.ring_points {
+            for w in members.windows(2) {
+                let d = (self.azimuth[w[1] as usize] - self.azimuth[w[0] as usize]).abs();
+                let d = d.min(std::f32::consts::TAU - d);
+                if d > 0.0 {
+                    self.steps.push(d);
+                }
+            }
+        }
+        if self.steps.len() < 10 {
+            return None;
+        }
+        let mid = self.steps.len() / 2;
+        Some(*self.steps.select_nth_unstable_by(mid, f32::total_cmp).1)
     }
 
     /// The return at ring `ring`, column `column` (or the next column either side), if any.

@@ -39,9 +39,11 @@ pub struct FeatureConfig {
     /// Weight of the intensity roughness σᴵ (mean |Δη| / 100). Zero without intensity. A
     /// painted edge of 60 units gives σᴵ ≈ 0.3, so 0.03 ranks it with a geometric corner.
     pub intensity_weight: f32,
-    /// σ above which a point may be an edge.
+    /// σ above which a point may be an edge, for a 0.2° azimuth step (scaled with the sweep's
+    /// own step).
     pub edge_threshold: f32,
-    /// σᴳ below which a point may be planar (the map-side plane check does the rest).
+    /// σᴳ below which a point may be planar (the map-side plane check does the rest), for a
+    /// 0.2° azimuth step (scaled likewise).
     pub plane_threshold: f32,
     /// Edges kept per sector.
     pub edges_per_sector: usize,

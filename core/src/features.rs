@@ -57,10 +57,16 @@ impl FeatureSelector {
     pub fn select(
         &mut self,
         scan: &Scan<'_>,
-        image: &RangeImage,
+        image: &mut RangeImage,
         config: &FeatureConfig,
         out: &mut SweepFeatures,
     ) {
+        // σᴳ of a corner grows with the azimuth step between returns (0.2° at 600 rpm, 0.4° at
+        // 1200 rpm), so the thresholds follow the sweep's own step; the ranking is unchanged.
+        let step_ratio = image
+            .azimuth_step()
+            .map_or(1.0, |step| step / REFERENCE_STEP_RAD);
+        let image = &*image;
         out.reference_ns = scan.reference_ns;
         out.returns = scan.points.len();
         out.edges.clear();
@@ -95,6 +101,8 @@ impl FeatureSelector {
             }
         }
 
+        let edge_threshold = config.edge_threshold * step_ratio.clamp(0.5, 4.0);
+        let plane_threshold = config.plane_threshold * step_ratio.clamp(0.5, 4.0);
         for members in &image.ring_points {
             if members.len() < 2 * k + 1 {
                 continue;
@@ -181,8 +189,7 @@ impl FeatureSelector {
                 slice.sort_unstable_by(|a, b| combined(b).total_cmp(&combined(a)));
                 let mut edges = 0;
                 for entry in slice.iter() {
-                    if edges >= config.edges_per_sector || combined(entry) <= config.edge_threshold
-                    {
+                    if edges >= config.edges_per_sector || combined(entry) <= edge_threshold {
                         break;
                     }
                     let w = entry.2 as usize;
@@ -202,7 +209,7 @@ impl FeatureSelector {
                     if self.unreliable[i] {
                         continue;
                     }
-                    if g < config.plane_threshold && !self.suppressed[i] {
+                    if g < plane_threshold && !self.suppressed[i] {
                         let p = scan.points[i].position;
                         let s = config.plane_voxel;
                         let key = (
@@ -231,6 +238,9 @@ impl FeatureSelector {
         }
     }
 }
+
+/// The azimuth step the configured thresholds are stated for: 0.2°, a VLP-16 at 600 rpm.
+const REFERENCE_STEP_RAD: f32 = 0.2 * std::f32::consts::PI / 180.0;
 
 fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
     norm([a[0] - b[0], a[1] - b[1], a[2] - b[2]])
@@ -287,7 +297,7 @@ mod tests {
             intensity_weight: 0.0,
             ..FeatureConfig::default()
         };
-        FeatureSelector::default().select(&scan, &image, &config, &mut f);
+        FeatureSelector::default().select(&scan, &mut image, &config, &mut f);
         assert!(!f.planes.is_empty());
         assert!(
             f.edges
@@ -314,7 +324,7 @@ mod tests {
         let mut image = RangeImage::default();
         image.build(&scan, &CalibrationConfig::default());
         let mut f = SweepFeatures::default();
-        FeatureSelector::default().select(&scan, &image, &FeatureConfig::default(), &mut f);
+        FeatureSelector::default().select(&scan, &mut image, &FeatureConfig::default(), &mut f);
         let near_stripe = |p: [f32; 3]| {
             (p[0] - 5.0).abs() < 0.05 && ((p[1] - 1.0).abs() < 0.2 || (p[1] - 1.3).abs() < 0.2)
         };

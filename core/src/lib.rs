@@ -17,3 +17,4 @@ pub mod local_map;
 pub mod scan;
 pub mod se3;
 pub mod solver;
+pub mod world_map;

@@ -9,6 +9,9 @@ use rustc_hash::FxHashMap;
 
 use crate::config::LocalMapConfig;
 
+/// The most neighbours [`LocalMap::nearest`] returns.
+pub const MAX_NEIGHBOURS: usize = 8;
+
 /// Points around the robot. See the module docs.
 #[derive(Debug, Clone)]
 pub struct LocalMap {
@@ -67,7 +70,8 @@ impl LocalMap {
         self.points += 1;
     }
 
-    /// The `k` nearest points to `p` within `max_distance`, nearest first, into `out`.
+    /// The `k` (at most [`MAX_NEIGHBOURS`]) nearest points to `p` within `max_distance`,
+    /// nearest first, into `out`.
     pub fn nearest(
         &self,
         p: &Vector3<f32>,
@@ -76,9 +80,11 @@ impl LocalMap {
         out: &mut Vec<Vector3<f32>>,
     ) {
         out.clear();
+        let k = k.clamp(1, MAX_NEIGHBOURS);
         let max_sq = max_distance * max_distance;
-        // A small sorted buffer of (distance², point): k is 5 in practice.
-        let mut best: Vec<(f32, Vector3<f32>)> = Vec::with_capacity(k + 1);
+        // A small sorted buffer of (distance², point) on the stack.
+        let mut best = [(f32::INFINITY, Vector3::zeros()); MAX_NEIGHBOURS];
+        let mut found = 0;
         let c = self.key(p);
         for dx in -1..=1 {
             for dy in -1..=1 {
@@ -88,17 +94,22 @@ impl LocalMap {
                     };
                     for q in cell {
                         let d = (q - p).norm_squared();
-                        if d > max_sq || (best.len() == k && d >= best[k - 1].0) {
+                        if d > max_sq || (found == k && d >= best[k - 1].0) {
                             continue;
                         }
-                        let at = best.partition_point(|(bd, _)| *bd <= d);
-                        best.insert(at, (d, *q));
-                        best.truncate(k);
+                        // Insertion into the sorted prefix.
+                        let mut at = found.min(k - 1);
+                        while at > 0 && best[at - 1].0 > d {
+                            best[at] = best[at - 1];
+                            at -= 1;
+                        }
+                        best[at] = (d, *q);
+                        found = (found + 1).min(k);
                     }
                 }
             }
         }
-        out.extend(best.into_iter().map(|(_, q)| q));
+        out.extend(best[..found].iter().map(|(_, q)| *q));
     }
 
     /// Drops cells farther than `radius` from `center` (per axis).

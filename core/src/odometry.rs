@@ -42,7 +42,7 @@ impl FrontEnd {
     pub fn process(&mut self, scan: &Scan<'_>, out: &mut SweepFeatures) {
         self.image.build(scan, &self.config.calibration);
         self.selector
-            .select(scan, &self.image, &self.config.features, out);
+            .select(scan, &mut self.image, &self.config.features, out);
     }
 }
 
@@ -244,6 +244,16 @@ impl Odometry {
         }
     }
 
+    /// The sweep's calibrated returns in the map frame at `pose`, deskewed with the current
+    /// velocity estimate (call right after [`Self::register`]), with their reflectivity.
+    pub fn map_points<'a>(
+        &self,
+        features: &'a SweepFeatures,
+        pose: &Isometry3<f64>,
+    ) -> impl Iterator<Item = (Vector3<f32>, f32)> + 'a {
+        place_calibrated(features, &self.velocity, pose)
+    }
+
     /// Fills the alignment input with the features moved to the reference time, assuming the
     /// body twist `velocity` over the sweep.
     fn deskew(&mut self, features: &SweepFeatures, velocity: &Vector6<f64>) {
@@ -275,13 +285,27 @@ impl Odometry {
         for p in &self.input.planes {
             self.planes.insert((pose * Point3::from(*p)).coords.cast());
         }
-        let skew = Deskew::new(&self.velocity);
-        let to_map = pose.cast::<f32>();
-        for f in &features.calibrated {
-            let p = to_map * Point3::from(skew.apply(f).cast::<f32>());
-            self.intensity.insert(&p.coords, f.eta);
+        for (p, eta) in place_calibrated(features, &self.velocity, pose) {
+            self.intensity.insert(&p, eta);
         }
     }
+}
+
+/// The calibrated returns of a sweep, deskewed for the body twist `velocity` and placed in the
+/// map frame at `pose`, with their reflectivity.
+fn place_calibrated<'a>(
+    features: &'a SweepFeatures,
+    velocity: &Vector6<f64>,
+    pose: &Isometry3<f64>,
+) -> impl Iterator<Item = (Vector3<f32>, f32)> + 'a {
+    let skew = Deskew::new(velocity);
+    let to_map = pose.cast::<f32>();
+    features.calibrated.iter().map(move |f| {
+        (
+            (to_map * Point3::from(skew.apply(f).cast::<f32>())).coords,
+            f.eta,
+        )
+    })
 }
 
 /// A sweep lasts 0.1 s at 600 rpm: the span over which a velocity error smears it.

@@ -29,20 +29,21 @@ pub fn run(args: InfoArgs) -> Result<()> {
     let st = report.stream.stats();
     let (data, position, other) = report.port_counts;
     let cap = report.capture;
-    println!("capture: {}", args.capture.display());
+    say!("capture: {}", args.capture.display());
     match report.stream.detection() {
-        Some(d) => println!("model: {}", d.describe()),
-        None => println!("model: undecided (no data packets)"),
+        Some(d) => say!("model: {}", d.describe()),
+        None => say!("model: undecided (no data packets)"),
     }
-    println!(
+    say!(
         "return mode: {}",
         st.return_mode.map_or("none", |m| m.name())
     );
-    println!(
+    say!(
         "packets: {data} data (port {}), {position} position (port {}), {other} to other ports",
-        args.sensor.data_port, args.sensor.position_port
+        args.sensor.data_port,
+        args.sensor.position_port
     );
-    println!(
+    say!(
         "skipped traffic: {} records not UDP/IPv4 ({} not IPv4, {} not UDP, {} fragments, {} unsupported link, {} malformed frames), {other} datagrams to other ports",
         cap.skipped(),
         cap.not_ipv4,
@@ -51,11 +52,11 @@ pub fn run(args: InfoArgs) -> Result<()> {
         cap.unsupported_link,
         cap.malformed
     );
-    println!(
+    say!(
         "dropped sensor packets: {} truncated, {} malformed; {} packets with a block azimuth of 36000 read as 0",
         st.truncated, st.malformed, st.full_turn_azimuths
     );
-    println!(
+    say!(
         "sweeps: {} ({} whole, {} partial), {} returns",
         st.sweeps,
         st.sweeps - st.partial_sweeps,
@@ -64,9 +65,9 @@ pub fn run(args: InfoArgs) -> Result<()> {
     );
     whole_rpm.sort_by(f64::total_cmp);
     match (whole_rpm.get(whole_rpm.len() / 2), st.rpm()) {
-        (Some(median), _) => println!("rpm: {median:.1} (median of whole sweeps)"),
-        (None, Some(rpm)) => println!("rpm: {rpm:.1} (from the azimuth advance; no whole sweep)"),
-        _ => println!("rpm: unknown"),
+        (Some(median), _) => say!("rpm: {median:.1} (median of whole sweeps)"),
+        (None, Some(rpm)) => say!("rpm: {rpm:.1} (from the azimuth advance; no whole sweep)"),
+        _ => say!("rpm: unknown"),
     }
     let source = match report.stream.clock().source() {
         TimeSource::Gps => "GPS ($GPRMC with PPS locked)",
@@ -74,20 +75,20 @@ pub fn run(args: InfoArgs) -> Result<()> {
         TimeSource::None => "none",
     };
     match st.first_ns {
-        Some(first) => println!(
+        Some(first) => say!(
             "time: {:.6} s to {:.6} s (span {:.6} s), from {source}",
             first as f64 * 1e-9,
             st.last_ns as f64 * 1e-9,
             (st.last_ns - first) as f64 * 1e-9
         ),
-        None => println!("time: no data"),
+        None => say!("time: no data"),
     }
-    println!(
+    say!(
         "gaps: {} packets missing; clock: {} hour wraps, {} backward jumps, {} forward jumps, {} reordered",
         st.packets_missing, st.clock.hour_wraps, st.clock.backward_jumps, st.clock.forward_jumps, st.clock.reordered
     );
     if st.product_id_changes > 0 {
-        println!(
+        say!(
             "warning: the product-id byte changed {} times within the capture",
             st.product_id_changes
         );

@@ -5,9 +5,20 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+/// Prints a line to stdout; a closed pipe (`glintd info … | head`) ends the program quietly
+/// instead of panicking as `println!` would.
+macro_rules! say {
+    ($($arg:tt)*) => {
+        $crate::print_line(format_args!($($arg)*))
+    };
+}
+
 mod capture;
 mod decode_cmd;
+mod eval_cmd;
 mod info_cmd;
+mod outputs;
+mod replay_cmd;
 
 /// Glint: intensity-assisted LiDAR localisation for VLP-16 AGVs.
 #[derive(Parser, Debug)]
@@ -23,6 +34,21 @@ enum Command {
     Info(info_cmd::InfoArgs),
     /// Decode every return of a capture to CSV (or PLY when the name ends in .ply).
     Decode(decode_cmd::DecodeArgs),
+    /// Run a capture through the odometry: trajectory, map, timing and accuracy.
+    Replay(replay_cmd::ReplayArgs),
+    /// Compare two TUM trajectories: relative drift and absolute trajectory error.
+    Eval(eval_cmd::EvalArgs),
+}
+
+fn print_line(args: std::fmt::Arguments<'_>) {
+    use std::io::Write;
+    if let Err(e) = writeln!(std::io::stdout().lock(), "{args}") {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            std::process::exit(0);
+        }
+        eprintln!("glintd: cannot write to stdout: {e}");
+        std::process::exit(1);
+    }
 }
 
 fn main() -> ExitCode {
@@ -37,6 +63,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Info(args) => info_cmd::run(args),
         Command::Decode(args) => decode_cmd::run(args),
+        Command::Replay(args) => replay_cmd::run(args),
+        Command::Eval(args) => eval_cmd::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

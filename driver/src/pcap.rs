@@ -78,6 +78,8 @@ impl CaptureStats {
 }
 
 const READ_BUFFER: usize = 1 << 20;
+/// Smallest read buffer: a 65,535-byte record with its header and then some.
+pub const MIN_BUFFER: usize = 1 << 17;
 
 #[derive(Debug, Clone, Copy)]
 struct Interface {
@@ -122,7 +124,16 @@ impl CaptureReader {
 
     /// Reads a capture from any byte stream.
     pub fn from_reader(reader: impl Read + Send + 'static) -> Result<Self, CaptureError> {
-        let reader = match create_reader(READ_BUFFER, reader) {
+        Self::with_buffer(reader, READ_BUFFER)
+    }
+
+    /// Reads a capture with a read buffer of `capacity` bytes (at least [`MIN_BUFFER`], enough
+    /// for the largest record a 64 KiB snap length allows).
+    pub fn with_buffer(
+        reader: impl Read + Send + 'static,
+        capacity: usize,
+    ) -> Result<Self, CaptureError> {
+        let reader = match create_reader(capacity.max(MIN_BUFFER), reader) {
             Ok(r) => r,
             Err(PcapError::Eof) | Err(PcapError::Incomplete(_)) | Err(PcapError::UnexpectedEof) => {
                 return Err(CaptureError::Truncated { offset: 0 })

@@ -6,7 +6,7 @@ use glint_driver::pcap::CaptureReader;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(mut reader) = CaptureReader::from_reader(std::io::Cursor::new(data.to_vec())) else { return };
+    let Ok(mut reader) = CaptureReader::with_buffer(std::io::Cursor::new(data.to_vec()), 0) else { return };
     let mut n = 0usize;
     loop {
         match reader.next() {
