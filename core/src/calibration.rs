@@ -32,6 +32,8 @@ pub struct RangeImage {
     pub eta: Vec<f32>,
     /// Per point: reflectivity above 100 (a retro-reflector).
     pub retro: Vec<bool>,
+    /// Per point: the unit surface normal the calibration used (zero where none), sensor frame.
+    pub normal: Vec<[f32; 3]>,
     /// Per point: azimuth, rad, clockwise from +x as the sensor counts it.
     azimuth: Vec<f32>,
     steps: Vec<f32>,
@@ -60,6 +62,8 @@ impl RangeImage {
         self.retro.resize(n, false);
         self.azimuth.clear();
         self.azimuth.resize(n, 0.0);
+        self.normal.clear();
+        self.normal.resize(n, [0.0; 3]);
 
         for (i, p) in scan.points.iter().enumerate() {
             let [x, y, z] = p.position;
@@ -82,9 +86,8 @@ impl RangeImage {
         }
 
         for ring in 0..self.rings {
-            let members = &self.ring_points[ring];
-            for (k, &i) in members.iter().enumerate() {
-                let i = i as usize;
+            for k in 0..self.ring_points[ring].len() {
+                let i = self.ring_points[ring][k] as usize;
                 let p = &scan.points[i];
                 let raw = f32::from(p.reflectivity);
                 if self.retro[i] {
@@ -132,7 +135,7 @@ impl RangeImage {
     /// cos α from the normal of the surface through the neighbours of point `i` (the `k`-th of
     /// ring `ring`), if they lie on one surface.
     fn incidence_cos(
-        &self,
+        &mut self,
         scan: &Scan<'_>,
         ring: usize,
         k: usize,
@@ -183,7 +186,9 @@ impl RangeImage {
         if norm < 1e-9 {
             return None;
         }
-        Some((p.dot(&normal) / (norm * range)).abs())
+        let unit = normal / norm;
+        self.normal[i] = [unit.x, unit.y, unit.z];
+        Some((p.dot(&unit) / range).abs())
     }
 }
 

@@ -47,6 +47,9 @@ pub struct FeatureConfig {
     pub plane_threshold: f32,
     /// Edges kept per sector.
     pub edges_per_sector: usize,
+    /// The sensor's range noise (1σ), m. Noise alone gives σᴳ ≈ √(2k)·σ / (2k·r) at range r:
+    /// an edge must exceed three times that, and a plane may be that rough.
+    pub range_noise: f32,
     /// Returns nearer than this are the robot or noise.
     pub min_range: f32,
     /// Returns farther than this are too sparse to describe a surface.
@@ -69,6 +72,7 @@ impl Default for FeatureConfig {
             edge_threshold: 0.004,
             plane_threshold: 0.003,
             edges_per_sector: 20,
+            range_noise: 0.02,
             min_range: 0.8,
             max_range: 90.0,
             plane_voxel: 0.5,

@@ -21,6 +21,8 @@ pub struct Feature {
     pub dt: f32,
     /// Calibrated reflectivity η.
     pub eta: f32,
+    /// Unit surface normal at the return (sensor frame), zero if unknown.
+    pub normal: [f32; 3],
 }
 
 /// The features of one sweep: what the front end hands the odometry.
@@ -87,6 +89,7 @@ impl FeatureSelector {
                 position: p.position,
                 dt: dt as f32,
                 eta: image.eta[i],
+                normal: image.normal[i],
             }
         };
         let k = config.neighbours.max(1);
@@ -194,7 +197,11 @@ impl FeatureSelector {
                     }
                     let w = entry.2 as usize;
                     let i = members[w] as usize;
-                    if self.unreliable[i] || self.suppressed[i] {
+                    let geometric_noise = noise_floor(config, k, image.range[i]);
+                    if self.unreliable[i]
+                        || self.suppressed[i]
+                        || combined(entry) <= edge_threshold + 3.0 * geometric_noise
+                    {
                         continue;
                     }
                     out.edges.push(feature(i));
@@ -209,7 +216,9 @@ impl FeatureSelector {
                     if self.unreliable[i] {
                         continue;
                     }
-                    if g < plane_threshold && !self.suppressed[i] {
+                    if g < plane_threshold + noise_floor(config, k, image.range[i])
+                        && !self.suppressed[i]
+                    {
                         let p = scan.points[i].position;
                         let s = config.plane_voxel;
                         let key = (
@@ -237,6 +246,11 @@ impl FeatureSelector {
             out.intensity.push(feature(i as usize));
         }
     }
+}
+
+/// σᴳ that range noise alone produces at range `r` with `k` neighbours each side.
+fn noise_floor(config: &FeatureConfig, k: usize, r: f32) -> f32 {
+    config.range_noise * ((2 * k) as f32).sqrt() / ((2 * k) as f32 * r.max(0.1))
 }
 
 /// The azimuth step the configured thresholds are stated for: 0.2°, a VLP-16 at 600 rpm.

@@ -18,7 +18,7 @@ use crate::intensity_map::IntensityMap;
 use crate::local_map::LocalMap;
 use crate::scan::Scan;
 use crate::se3::{exp, log};
-use crate::solver::{align, Alignment, AlignmentInput, MapView};
+use crate::solver::{align, Alignment, AlignmentInput, IntensityPoint, MapView};
 
 /// Steps 1–2 for one sweep: calibration and feature selection. Independent of the motion, so
 /// it can run on its own thread ahead of the odometry.
@@ -268,12 +268,13 @@ impl Odometry {
             .extend(features.planes.iter().map(|f| skew.apply(f)));
         self.input.intensity.clear();
         if self.config.solver.use_intensity {
-            self.input.intensity.extend(
-                features
-                    .intensity
-                    .iter()
-                    .map(|f| (skew.apply(f), f64::from(f.eta))),
-            );
+            self.input
+                .intensity
+                .extend(features.intensity.iter().map(|f| IntensityPoint {
+                    point: skew.apply(f),
+                    eta: f64::from(f.eta),
+                    normal: Vector3::from(f.normal).cast(),
+                }));
         }
     }
 
@@ -391,6 +392,7 @@ mod tests {
             position: [seen_then.x as f32, seen_then.y as f32, seen_then.z as f32],
             dt: -0.05,
             eta: 0.0,
+            normal: [0.0; 3],
         };
         let deskewed = Deskew::new(&twist).apply(&f);
         let expected = at(0.0).inverse() * world;

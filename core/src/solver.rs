@@ -24,7 +24,18 @@ pub struct AlignmentInput {
     /// Planar points.
     pub planes: Vec<Vector3<f64>>,
     /// Points with their calibrated reflectivity, for the intensity residual.
-    pub intensity: Vec<(Vector3<f64>, f64)>,
+    pub intensity: Vec<IntensityPoint>,
+}
+
+/// A point for the intensity residual.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IntensityPoint {
+    /// Position, sensor frame at the reference time.
+    pub point: Vector3<f64>,
+    /// Calibrated reflectivity.
+    pub eta: f64,
+    /// Unit surface normal (sensor frame), or zero if unknown.
+    pub normal: Vector3<f64>,
 }
 
 /// The maps to align against.
@@ -385,15 +396,20 @@ fn build(
     }
     if config.use_intensity {
         let weight = config.intensity_weight;
-        for (p, eta) in &input.intensity {
-            let q = (pose * Point3::from(*p)).coords;
+        for ip in &input.intensity {
+            let q = (pose * Point3::from(ip.point)).coords;
             let Some(sample) = intensity.sample(&q) else {
                 continue;
             };
-            let r = weight * (eta - sample.value);
+            let r = weight * (ip.eta - sample.value);
             let (w, cost) = huber(r.abs(), config.huber_intensity);
+            // Reflectivity is a property of the surface: only its gradient along the surface
+            // says where the point is. Across the surface the voxel grid's layering makes up a
+            // gradient, and the position there is geometry's to decide.
+            let n = pose.rotation * ip.normal;
+            let along = sample.gradient - n * n.dot(&sample.gradient);
             // r = w·(η − M(q)) ⇒ ∂r/∂δ = −w·∇Mᵀ·[−[q]×, I].
-            let g = -weight * sample.gradient;
+            let g = -weight * along;
             let j_rot = -(g.transpose() * skew(&q));
             let j = Vector6::new(j_rot[0], j_rot[1], j_rot[2], g.x, g.y, g.z);
             s.hessian += w * j * j.transpose();
@@ -611,7 +627,11 @@ mod tests {
                     let f = p.x.rem_euclid(2.0);
                     f.min((f - 0.6).abs()).min(2.0 - f) < 0.3
                 })
-                .map(|p| ((inverse * Point3::from(*p)).coords, stripe(p.x)))
+                .map(|p| IntensityPoint {
+                    point: (inverse * Point3::from(*p)).coords,
+                    eta: stripe(p.x),
+                    normal: inverse.rotation * Vector3::y(),
+                })
                 .collect(),
         };
         let maps = MapView {
