@@ -1,0 +1,40 @@
+//! Glint's shared-memory pose contract: the payload types, the service names, and publisher and
+//! subscriber wrappers over iceoryx2 (exactly 0.10.0).
+//!
+//! The daemon creates one [`PosePublisher`] per domain at start; consumers open a
+//! [`PoseSubscriber`] or [`StatusSubscriber`]. Consumers in other languages read the same bytes:
+//! `ipc/README.md` states the byte layout, names and settings once, and `tests/layout.rs` checks
+//! the layout against it.
+//!
+//! | module | owns |
+//! | --- | --- |
+//! | [`payload`] | [`Pose`], [`Status`], [`StatusFlags`], [`Frame`] — the wire structs |
+//! | [`names`] | [`Domain`] validation and the `glint/<domain>/<stream>[/event]` names |
+//! | [`settings`] | history, buffer, overflow and port limits of the services |
+//! | [`publisher`] | [`PosePublisher`] (the daemon's side) |
+//! | [`subscriber`] | [`PoseSubscriber`], [`StatusSubscriber`] (the consumers' side) |
+
+pub mod names;
+pub mod payload;
+pub mod publisher;
+pub mod settings;
+pub mod subscriber;
+
+pub use names::{Domain, DomainError, PoseStream, Stream};
+pub use payload::{Frame, Pose, Status, StatusFlags};
+pub use publisher::{
+    DeadNodeCleanup, PosePublisher, PublishError, PublisherError, UpdateConnectionsError,
+};
+pub use subscriber::{PoseSubscriber, ReceiveError, StatusSubscriber, SubscribeError, WaitError};
+
+/// The iceoryx2 this crate is built on, re-exported so callers match on its error types with
+/// the very same version.
+pub use iceoryx2;
+
+/// The exact iceoryx2 version of the contract; every process on the bus must use this one.
+pub const ICEORYX2_VERSION: &str = "0.10.0";
+
+/// The iceoryx2 service flavour used throughout: inter-process, with ports that are `Send` and
+/// `Sync` (mutex-protected). It shares memory layout and files with `ipc::Service` (and Python's
+/// `ServiceType.Ipc`), differing only in in-process locking.
+type Transport = iceoryx2::service::ipc_threadsafe::Service;

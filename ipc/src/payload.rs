@@ -1,0 +1,344 @@
+//! The wire payloads: [`Pose`] and [`Status`], the [`StatusFlags`] bitfield and the [`Frame`] code.
+//!
+//! These structs *are* the shared-memory contract with every consumer, in any language. Each is
+//! `#[repr(C)]`, fixed-size, pointer-free, with every padding byte an explicit field, so Rust, C and
+//! Python ctypes compute the same layout; `ipc/README.md` tables the offsets and `tests/layout.rs`
+//! pins them. The iceoryx2 type name carries a version suffix: a layout change must come with a new
+//! name (`glint::PoseV2`), so an old consumer is refused with `IncompatibleTypes` instead of
+//! misreading bytes.
+//!
+//! Enumerated and bitfield values are newtypes over `u32`, never Rust enums: a subscriber reads the
+//! struct straight from memory another process wrote, and every bit pattern must be a valid value.
+//! The newtypes are `#[repr(C)]` (iceoryx2's derive demands it), which for one `u32` field is the
+//! layout of a `u32`.
+
+use core::fmt;
+use core::ops::{BitOr, BitOrAssign};
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Status bits shared by [`Pose::status`] and [`Status::flags`].
+///
+/// Bits 7..=31 are reserved: the publisher writes 0, consumers must ignore them (new bits may be
+/// added without a new type name; their absence must stay safe to assume).
+#[repr(C)]
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
+pub struct StatusFlags(pub u32);
+
+impl StatusFlags {
+    /// No bit set.
+    pub const NONE: Self = Self(0);
+    /// Bit 0: the estimator is starting up (first sweeps, no local map yet); do not steer by it.
+    pub const INITIALISING: Self = Self(1 << 0);
+    /// Bit 1: scan matching converged on this sweep; the pose is a measurement.
+    pub const TRACKING: Self = Self(1 << 1);
+    /// Bit 2: the scene constrains some direction poorly (a long corridor); the covariance
+    /// says which.
+    pub const DEGENERATE: Self = Self(1 << 2);
+    /// Bit 3: tracking is lost; the pose is the last good one, not the robot's current pose.
+    pub const LOST: Self = Self(1 << 3);
+    /// Bit 4: a loop closure corrected the map frame; this `map` pose may jump relative to the
+    /// previous one. Set on the first `map` pose after the correction only.
+    pub const LOOP_CLOSED: Self = Self(1 << 4);
+    /// Bit 5: the pose is extrapolated (constant velocity) rather than measured; always set on
+    /// the `predicted` stream.
+    pub const PREDICTED: Self = Self(1 << 5);
+    /// Bit 6: no packets arrived from the sensor recently (cable, power or network).
+    pub const SENSOR_SILENT: Self = Self(1 << 6);
+
+    /// All bits this version defines.
+    pub const KNOWN: Self = Self((1 << 7) - 1);
+
+    /// The raw bits, as on the wire.
+    pub const fn bits(self) -> u32 {
+        self.0
+    }
+
+    /// Whether every bit of `other` is set in `self`.
+    pub const fn contains(self, other: Self) -> bool {
+        self.0 & other.0 == other.0
+    }
+
+    /// Whether any bit of `other` is set in `self`.
+    pub const fn intersects(self, other: Self) -> bool {
+        self.0 & other.0 != 0
+    }
+
+    /// `self` with the bits of `other` set.
+    pub const fn with(self, other: Self) -> Self {
+        Self(self.0 | other.0)
+    }
+
+    /// `self` with the bits of `other` cleared.
+    pub const fn without(self, other: Self) -> Self {
+        Self(self.0 & !other.0)
+    }
+}
+
+impl BitOr for StatusFlags {
+    type Output = Self;
+
+    fn bitor(self, rhs: Self) -> Self {
+        self.with(rhs)
+    }
+}
+
+impl BitOrAssign for StatusFlags {
+    fn bitor_assign(&mut self, rhs: Self) {
+        *self = self.with(rhs);
+    }
+}
+
+impl fmt::Display for StatusFlags {
+    /// `TRACKING|LOOP_CLOSED`, `-` for none; unknown bits as hex so nothing is hidden.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        const NAMES: [(StatusFlags, &str); 7] = [
+            (StatusFlags::INITIALISING, "INITIALISING"),
+            (StatusFlags::TRACKING, "TRACKING"),
+            (StatusFlags::DEGENERATE, "DEGENERATE"),
+            (StatusFlags::LOST, "LOST"),
+            (StatusFlags::LOOP_CLOSED, "LOOP_CLOSED"),
+            (StatusFlags::PREDICTED, "PREDICTED"),
+            (StatusFlags::SENSOR_SILENT, "SENSOR_SILENT"),
+        ];
+        let mut first = true;
+        let mut sep = |f: &mut fmt::Formatter<'_>| {
+            let s = if first { "" } else { "|" };
+            first = false;
+            f.write_str(s)
+        };
+        for (flag, name) in NAMES {
+            if self.contains(flag) {
+                sep(f)?;
+                f.write_str(name)?;
+            }
+        }
+        let unknown = self.0 & !Self::KNOWN.0;
+        if unknown != 0 {
+            sep(f)?;
+            write!(f, "{unknown:#x}")?;
+        }
+        if self.0 == 0 {
+            f.write_str("-")?;
+        }
+        Ok(())
+    }
+}
+
+/// The frame a [`Pose`] is expressed in (REP-105), as a `u32` code.
+///
+/// A newtype rather than an enum so that an unknown code written by a newer publisher is a value
+/// to report, not undefined behaviour.
+#[repr(C)]
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
+pub struct Frame(pub u32);
+
+impl Frame {
+    /// 0: `odom` — continuous and smooth, never jumps, drifts without bound.
+    pub const ODOM: Self = Self(0);
+    /// 1: `map` — globally consistent; may jump once after a loop closure
+    /// ([`StatusFlags::LOOP_CLOSED`]).
+    pub const MAP: Self = Self(1);
+
+    /// The name used in ROS (`odom`, `map`), or `None` for a code this version does not know.
+    pub const fn name(self) -> Option<&'static str> {
+        match self {
+            Self::ODOM => Some("odom"),
+            Self::MAP => Some("map"),
+            _ => None,
+        }
+    }
+}
+
+impl fmt::Display for Frame {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.name() {
+            Some(name) => f.write_str(name),
+            None => write!(f, "frame#{}", self.0),
+        }
+    }
+}
+
+/// One pose of the robot base (`base_link`) in [`Frame::ODOM`] or [`Frame::MAP`]: 424 bytes,
+/// alignment 8, iceoryx2 type name `glint::PoseV1`.
+///
+/// Units are SI. Sequence numbers are the publisher's and increase by one per message on each
+/// stream; a gap means the consumer missed messages (its buffer overflowed).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("glint::PoseV1")]
+pub struct Pose {
+    /// Per-stream message counter, set by the publisher.
+    pub sequence: u64,
+    /// The instant the pose describes (the sweep's reference time after deskew), ns since the
+    /// Unix epoch — not the time it was computed or published.
+    pub timestamp_ns: u64,
+    /// Position of `base_link` in `frame`, metres.
+    pub position: [f64; 3],
+    /// Orientation of `base_link` in `frame`: a unit Hamilton quaternion stored **x, y, z, w**
+    /// (the ROS/Eigen-coefficients order, scalar last).
+    pub orientation: [f64; 4],
+    /// Linear velocity of `base_link`, m/s, in the body frame (`base_link` axes).
+    pub linear_velocity: [f64; 3],
+    /// Angular velocity of `base_link`, rad/s, in the body frame.
+    pub angular_velocity: [f64; 3],
+    /// Pose covariance, 6×6 row-major over `[x, y, z, roll, pitch, yaw]` (m², rad², m·rad), the
+    /// same convention as ROS `PoseWithCovariance`. Never NaN. A diagonal-only estimate (zeros off
+    /// the diagonal) is allowed.
+    pub covariance: [f64; 36],
+    /// Match quality in `0..=1` (1 = every feature matched within tolerance).
+    pub quality: f32,
+    /// The frame the pose is expressed in.
+    pub frame: Frame,
+    /// What the estimator knew when it produced this pose.
+    pub status: StatusFlags,
+    /// Explicit padding to a multiple of 8 bytes; always 0.
+    _pad0: u32,
+}
+
+impl Pose {
+    /// The iceoryx2 type name, as other languages must spell it.
+    pub const TYPE_NAME: &'static str = "glint::PoseV1";
+
+    /// A pose at the origin with identity orientation, zero velocity and covariance, quality 0
+    /// and no status bits, for the caller to fill in.
+    pub const fn new(sequence: u64, timestamp_ns: u64, frame: Frame) -> Self {
+        Self {
+            sequence,
+            timestamp_ns,
+            position: [0.0; 3],
+            orientation: [0.0, 0.0, 0.0, 1.0],
+            linear_velocity: [0.0; 3],
+            angular_velocity: [0.0; 3],
+            covariance: [0.0; 36],
+            quality: 0.0,
+            frame,
+            status: StatusFlags::NONE,
+            _pad0: 0,
+        }
+    }
+
+    /// The name of the first field holding a NaN or infinity, if any; the publisher refuses such
+    /// poses so consumers may rely on finite numbers.
+    pub fn first_non_finite_field(&self) -> Option<&'static str> {
+        let fields: [(&'static str, &[f64]); 5] = [
+            ("position", &self.position),
+            ("orientation", &self.orientation),
+            ("linear_velocity", &self.linear_velocity),
+            ("angular_velocity", &self.angular_velocity),
+            ("covariance", &self.covariance),
+        ];
+        fields
+            .into_iter()
+            .find(|(_, values)| values.iter().any(|v| !v.is_finite()))
+            .map(|(name, _)| name)
+            .or_else(|| (!self.quality.is_finite()).then_some("quality"))
+    }
+}
+
+/// Daemon health, published about once a second: 80 bytes, alignment 8, iceoryx2 type name
+/// `glint::StatusV1`.
+///
+/// Counters are totals since the daemon started (they restart from 0 with it); rates and
+/// latencies are over the daemon's last reporting window.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("glint::StatusV1")]
+pub struct Status {
+    /// Message counter of the status stream, set by the publisher.
+    pub sequence: u64,
+    /// When the status was taken, ns since the Unix epoch.
+    pub timestamp_ns: u64,
+    /// Sweeps that went through the whole pipeline.
+    pub sweeps_processed: u64,
+    /// Whole sweeps dropped because a stage fell behind.
+    pub sweeps_dropped: u64,
+    /// Sensor packets received.
+    pub packets_received: u64,
+    /// Sensor packets lost (gaps in the sensor's timing) or dropped by the receiver.
+    pub packets_dropped: u64,
+    /// Sensor packets refused as truncated or corrupt.
+    pub packets_malformed: u64,
+    /// Sweeps per second processed.
+    pub sweep_rate_hz: f32,
+    /// Packets per second received.
+    pub packet_rate_hz: f32,
+    /// Median latency, last packet of a sweep received → pose published, ms.
+    pub latency_median_ms: f32,
+    /// 99th-percentile of the same latency, ms.
+    pub latency_p99_ms: f32,
+    /// The same bits as the latest pose's [`Pose::status`].
+    pub flags: StatusFlags,
+    /// Explicit padding to a multiple of 8 bytes; always 0.
+    _pad0: u32,
+}
+
+impl Status {
+    /// The iceoryx2 type name, as other languages must spell it.
+    pub const TYPE_NAME: &'static str = "glint::StatusV1";
+
+    /// A status with every counter, rate and flag zero, for the caller to fill in.
+    pub const fn new(sequence: u64, timestamp_ns: u64) -> Self {
+        Self {
+            sequence,
+            timestamp_ns,
+            sweeps_processed: 0,
+            sweeps_dropped: 0,
+            packets_received: 0,
+            packets_dropped: 0,
+            packets_malformed: 0,
+            sweep_rate_hz: 0.0,
+            packet_rate_hz: 0.0,
+            latency_median_ms: 0.0,
+            latency_p99_ms: 0.0,
+            flags: StatusFlags::NONE,
+            _pad0: 0,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flags_display_names_bits_and_keeps_unknown_ones_visible() {
+        assert_eq!(StatusFlags::NONE.to_string(), "-");
+        assert_eq!(
+            (StatusFlags::TRACKING | StatusFlags::LOOP_CLOSED).to_string(),
+            "TRACKING|LOOP_CLOSED"
+        );
+        assert_eq!(
+            StatusFlags(StatusFlags::LOST.0 | 1 << 20).to_string(),
+            "LOST|0x100000"
+        );
+    }
+
+    #[test]
+    fn flags_set_and_clear() {
+        let f = StatusFlags::TRACKING.with(StatusFlags::DEGENERATE);
+        assert!(f.contains(StatusFlags::TRACKING));
+        assert!(!f.contains(StatusFlags::TRACKING | StatusFlags::LOST));
+        assert!(f.intersects(StatusFlags::TRACKING | StatusFlags::LOST));
+        assert_eq!(f.without(StatusFlags::DEGENERATE), StatusFlags::TRACKING);
+        assert_eq!(StatusFlags::KNOWN.bits(), 0x7f);
+    }
+
+    #[test]
+    fn unknown_frame_code_is_a_value_not_an_error() {
+        assert_eq!(Frame::ODOM.to_string(), "odom");
+        assert_eq!(Frame::MAP.to_string(), "map");
+        assert_eq!(Frame(7).to_string(), "frame#7");
+    }
+
+    #[test]
+    fn non_finite_fields_are_named() {
+        let mut p = Pose::new(1, 2, Frame::ODOM);
+        assert_eq!(p.first_non_finite_field(), None);
+        p.covariance[35] = f64::NAN;
+        assert_eq!(p.first_non_finite_field(), Some("covariance"));
+        p.covariance[35] = 0.0;
+        p.quality = f32::INFINITY;
+        assert_eq!(p.first_non_finite_field(), Some("quality"));
+    }
+}
