@@ -96,8 +96,10 @@ impl RangeImage {
                 }
                 let cos = self.incidence_cos(scan, ring, k, i, config);
                 self.eta[i] = match cos {
-                    Some(c) => (raw / c.max(config.min_cos_incidence)).min(config.max_calibrated),
-                    None => f32::NAN,
+                    Some(c) if c >= config.min_reliable_cos => {
+                        (raw / c.max(config.min_cos_incidence)).min(config.max_calibrated)
+                    }
+                    _ => f32::NAN,
                 };
             }
         }

@@ -6,6 +6,11 @@
 pub struct CalibrationConfig {
     /// Floor on cos α, so grazing returns do not explode (cos 80°).
     pub min_cos_incidence: f32,
+    /// Below this cos α (72.5°) the calibrated value is not trusted for the intensity map or
+    /// residual: the sensor reports a few counts there (100·ρ·cos α, rounded), a small error in
+    /// the normal changes η a lot, and the error depends on the viewpoint, so averaging it over
+    /// viewpoints blurs the map.
+    pub min_reliable_cos: f32,
     /// Returns with a raw reflectivity below this are weak (noisy range): dropped.
     pub min_reflectivity: u8,
     /// Neighbours farther apart than this fraction of the range are not on the same surface.
@@ -18,6 +23,7 @@ impl Default for CalibrationConfig {
     fn default() -> Self {
         Self {
             min_cos_incidence: 0.17,
+            min_reliable_cos: 0.3,
             min_reflectivity: 1,
             neighbour_gap: 0.05,
             max_calibrated: 150.0,

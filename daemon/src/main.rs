@@ -19,6 +19,7 @@ mod eval_cmd;
 mod info_cmd;
 mod outputs;
 mod replay_cmd;
+mod sim_cmd;
 
 /// Glint: intensity-assisted LiDAR localisation for VLP-16 AGVs.
 #[derive(Parser, Debug)]
@@ -38,6 +39,8 @@ enum Command {
     Replay(replay_cmd::ReplayArgs),
     /// Compare two TUM trajectories: relative drift and absolute trajectory error.
     Eval(eval_cmd::EvalArgs),
+    /// Simulate a VLP-16 on a robot in a scenario: pcap, ground truth and scene description.
+    Sim(sim_cmd::SimArgs),
 }
 
 fn print_line(args: std::fmt::Arguments<'_>) {
@@ -65,6 +68,7 @@ fn main() -> ExitCode {
         Command::Decode(args) => decode_cmd::run(args),
         Command::Replay(args) => replay_cmd::run(args),
         Command::Eval(args) => eval_cmd::run(args),
+        Command::Sim(args) => sim_cmd::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,221 @@
+//! `glintd sim`: the virtual VLP-16 from the command line. Writes a run's capture, ground truth
+//! and scene description (`--out DIR`), streams the same packets live over UDP at real-time
+//! pace (`--udp HOST`), or prints a scenario's layout (`--describe`). Flags are parsed here and
+//! validated once into a `glint_sim::SimConfig`; the simulation itself lives in `glint-sim`.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+use glint_sim::{
+    parse_start_time, scenarios, ReturnMode, RunOptions, Scenario, SimConfig, UdpTarget,
+};
+
+/// Which returns the virtual sensor reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ReturnModeArg {
+    /// The strongest echo of each firing (factory byte 0x37).
+    Strongest,
+    /// The last echo (0x38).
+    Last,
+    /// Both, in paired blocks (0x39).
+    Dual,
+}
+
+impl From<ReturnModeArg> for ReturnMode {
+    fn from(mode: ReturnModeArg) -> Self {
+        match mode {
+            ReturnModeArg::Strongest => ReturnMode::Strongest,
+            ReturnModeArg::Last => ReturnMode::Last,
+            ReturnModeArg::Dual => ReturnMode::Dual,
+        }
+    }
+}
+
+/// Simulate a VLP-16 on a robot driving through a scenario.
+#[derive(Args, Debug)]
+pub struct SimArgs {
+    /// The scenario: warehouse, corridor or yard.
+    pub scenario: String,
+    /// Seed: varies the layout, the sensor unit, the start time and the noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Simulated duration in seconds; the robot's loop repeats until it is reached.
+    #[arg(long, default_value_t = 60.0, allow_negative_numbers = true)]
+    pub seconds: f64,
+    /// Write scan.pcap, groundtruth.tum, groundtruth_dense.tum and scene.json into this
+    /// directory (created if needed).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Rotor speed in revolutions per minute (300–1200).
+    #[arg(long, default_value_t = 600.0, allow_negative_numbers = true)]
+    pub rpm: f64,
+    /// Which returns to report.
+    #[arg(long, value_enum, default_value_t = ReturnModeArg::Strongest)]
+    pub return_mode: ReturnModeArg,
+    /// Range noise σ in metres.
+    #[arg(long, default_value_t = 0.015, allow_negative_numbers = true)]
+    pub noise_sigma: f64,
+    /// Turn off range and reflectivity noise (the per-laser gain bias stays: it is the unit's).
+    #[arg(long)]
+    pub no_noise: bool,
+    /// Probability that a data packet is lost, in [0, 1).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub packet_loss: f64,
+    /// Time of the first firing, as Unix seconds (e.g. 1700000000.25) or RFC 3339 (e.g.
+    /// 2024-05-01T12:00:00Z, 2024-05-01T14:00:00.5+02:00). Default: fixed by the seed.
+    #[arg(long, value_name = "TIME")]
+    pub start_time: Option<String>,
+    /// Print the scenario's layout for this seed and exit.
+    #[arg(long)]
+    pub describe: bool,
+    /// Stream the packets live at real-time pace to this host (e.g. 127.0.0.1).
+    #[arg(long, value_name = "HOST")]
+    pub udp: Option<String>,
+    /// Destination port of data packets when streaming.
+    #[arg(long, default_value_t = 2368)]
+    pub data_port: u16,
+    /// Destination port of position packets when streaming.
+    #[arg(long, default_value_t = 8308)]
+    pub position_port: u16,
+}
+
+impl SimArgs {
+    /// The validated configuration these flags describe.
+    pub fn config(&self) -> Result<SimConfig> {
+        let scenario: Scenario = self.scenario.parse()?;
+        let start_time_ns = self
+            .start_time
+            .as_deref()
+            .map(parse_start_time)
+            .transpose()?;
+        let config = SimConfig {
+            scenario,
+            seed: self.seed,
+            seconds: self.seconds,
+            rpm: self.rpm,
+            return_mode: self.return_mode.into(),
+            range_noise_m: self.noise_sigma,
+            noise: !self.no_noise,
+            packet_loss: self.packet_loss,
+            start_time_ns,
+            ..SimConfig::default()
+        };
+        config.validate()?;
+        Ok(config)
+    }
+}
+
+/// Runs `glintd sim`.
+pub fn run(args: SimArgs) -> Result<()> {
+    if args.describe {
+        let scenario: Scenario = args.scenario.parse()?;
+        let text = scenarios::describe(scenario, args.seed)
+            .with_context(|| format!("describing {scenario}"))?;
+        say!("{}", text.trim_end());
+        return Ok(());
+    }
+    let config = args.config()?;
+    if args.out.is_none() && args.udp.is_none() {
+        bail!("nothing to do: give --out DIR to write files, --udp HOST to stream live, or --describe");
+    }
+    let target = args.udp.as_ref().map(|host| UdpTarget {
+        host: host.clone(),
+        data_port: args.data_port,
+        position_port: args.position_port,
+    });
+    if let Some(t) = &target {
+        eprintln!(
+            "streaming {} to {} (data port {}, position port {}) at real-time pace for {} s",
+            config.scenario, t.host, t.data_port, t.position_port, config.seconds
+        );
+    }
+    let options = RunOptions {
+        out_dir: args.out.as_deref(),
+        udp: target.as_ref(),
+        stop: None,
+    };
+    let summary = glint_sim::run(&config, &options)
+        .with_context(|| format!("simulating {}", config.scenario))?;
+    say!("{}", summary.report());
+    if let Some(dir) = &args.out {
+        say!(
+            "wrote {0}/scan.pcap, {0}/groundtruth.tum, {0}/groundtruth_dense.tum, {0}/scene.json",
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser, Debug)]
+    struct Cli {
+        #[command(flatten)]
+        sim: SimArgs,
+    }
+
+    fn parse(args: &[&str]) -> SimArgs {
+        Cli::try_parse_from(std::iter::once("sim").chain(args.iter().copied()))
+            .expect("flags parse")
+            .sim
+    }
+
+    #[test]
+    fn defaults_match_the_issue() {
+        let a = parse(&["warehouse"]);
+        assert_eq!(
+            (a.seed, a.seconds, a.rpm, a.data_port, a.position_port),
+            (1, 60.0, 600.0, 2368, 8308)
+        );
+        let c = a.config().unwrap();
+        assert_eq!(c.return_mode, ReturnMode::Strongest);
+        assert!(c.noise && c.start_time_ns.is_none());
+    }
+
+    #[test]
+    fn flags_reach_the_config() {
+        let a = parse(&[
+            "corridor",
+            "--seed",
+            "7",
+            "--seconds",
+            "12.5",
+            "--rpm",
+            "900",
+            "--return-mode",
+            "dual",
+            "--no-noise",
+            "--packet-loss",
+            "0.01",
+            "--start-time",
+            "2024-05-01T12:00:00Z",
+        ]);
+        let c = a.config().unwrap();
+        assert_eq!(
+            (c.scenario, c.seed, c.seconds, c.rpm),
+            (Scenario::Corridor, 7, 12.5, 900.0)
+        );
+        assert_eq!(c.return_mode, ReturnMode::Dual);
+        assert!(!c.noise);
+        assert_eq!(c.start_time_ns, Some(1_714_564_800_000_000_000));
+    }
+
+    #[test]
+    fn bad_values_are_errors_not_panics() {
+        assert!(parse(&["warehouse", "--seconds", "0"]).config().is_err());
+        assert!(parse(&["warehouse", "--seconds", "-3"]).config().is_err());
+        assert!(parse(&["parking-lot"]).config().is_err());
+        assert!(parse(&["yard", "--rpm", "2000"]).config().is_err());
+        assert!(parse(&["yard", "--start-time", "yesterday"])
+            .config()
+            .is_err());
+        assert!(
+            run(parse(&["yard"])).is_err(),
+            "no --out, --udp or --describe"
+        );
+    }
+}
