@@ -70,9 +70,8 @@ pub struct Clock {
     window_min: i128,
     previous_window_min: i128,
     window_start_ns: u64,
-    /// GPS anchor: Unix ns of the hour the counter of the last fix counted from.
-    gps_hour_start_ns: Option<u64>,
-    gps_counter_us: u32,
+    /// GPS anchor: Unix ns − unwrapped counter ns, from the last fix.
+    gps_offset: Option<i128>,
     stats: ClockStats,
 }
 
@@ -94,8 +93,7 @@ impl Clock {
             window_min: i128::MAX,
             previous_window_min: i128::MAX,
             window_start_ns: 0,
-            gps_hour_start_ns: None,
-            gps_counter_us: 0,
+            gps_offset: None,
             stats: ClockStats::default(),
         }
     }
@@ -107,7 +105,7 @@ impl Clock {
 
     /// The current source of absolute time.
     pub fn source(&self) -> TimeSource {
-        if self.gps_hour_start_ns.is_some() {
+        if self.gps_offset.is_some() {
             TimeSource::Gps
         } else if self.offset.is_some() {
             TimeSource::ReceiveTime
@@ -134,8 +132,27 @@ impl Clock {
         if hour < 0 {
             return false;
         }
-        self.gps_hour_start_ns = Some(hour as u64 * HOUR_NS);
-        self.gps_counter_us = counter;
+        // Anchor to the unwrapped counter, not to this fix's hour: times must stay right for as
+        // long as the counter runs, fix or no fix (a PPS can drop for hours).
+        let hours = match self.last_counter {
+            None => {
+                self.last_counter = Some(counter);
+                self.hours
+            }
+            Some(last) => {
+                let delta = i64::from(counter) - i64::from(last);
+                let half = (HOUR_US / 2) as i64;
+                if delta < -half {
+                    self.hours + 1
+                } else if delta > half {
+                    self.hours.saturating_sub(1)
+                } else {
+                    self.hours
+                }
+            }
+        };
+        self.gps_offset =
+            Some(i128::from(hour as u64 * HOUR_NS) - i128::from(hours) * HOUR_NS as i128);
         self.stats.gps_fixes += 1;
         true
     }
@@ -146,20 +163,8 @@ impl Clock {
         let unwrapped_us = self.unwrap(counter_us, receive_ns);
         let device_ns = i128::from(unwrapped_us) * 1000;
         self.track_offset(device_ns, receive_ns);
-        if let Some(hour_start) = self.gps_hour_start_ns {
-            // The counter belongs to the anchor's hour, the next or the previous one: the one
-            // that puts it closest to the anchor's own counter.
-            let c = i64::from(counter_us);
-            let a = i64::from(self.gps_counter_us);
-            let half = (HOUR_US / 2) as i64;
-            let hour_start = if c - a < -half {
-                hour_start + HOUR_NS
-            } else if c - a > half {
-                hour_start.saturating_sub(HOUR_NS)
-            } else {
-                hour_start
-            };
-            return hour_start + u64::from(counter_us) * 1000;
+        if let Some(gps) = self.gps_offset {
+            return (device_ns + gps).max(0) as u64;
         }
         let offset = self.offset.expect("track_offset sets it");
         (device_ns + offset).max(0) as u64
@@ -184,7 +189,9 @@ impl Clock {
                 } else {
                     self.stats.forward_jumps += 1;
                 }
+                // The counter restarted: neither anchor holds until re-established.
                 self.offset = None;
+                self.gps_offset = None;
             } else if counter < last {
                 self.hours += 1;
                 self.stats.hour_wraps += 1;
@@ -203,9 +210,10 @@ impl Clock {
                 return hours * HOUR_US + u64::from(counter);
             }
             // The counter went back: a reset. Keep counting from here; the offset tracking
-            // re-establishes the anchor.
+            // (or the next GPS fix) re-establishes the anchor.
             self.stats.backward_jumps += 1;
             self.offset = None;
+            self.gps_offset = None;
         }
         self.last_counter = Some(counter);
         self.last_receive_ns = receive_ns;
@@ -311,15 +319,37 @@ mod tests {
         p.set_timestamp_us(3_599_400_000);
         assert!(c.observe_position(&PositionPacket::new_unchecked(&buf[..])));
         // A data packet after the wrap belongs to 11:00.
-        let t = c.packet_time(200_000, 0);
-        assert_eq!(t, (20_780 * 86_400 + 11 * 3600) * NS_PER_S + 200_000_000);
-        // One before it to 10:xx.
-        let t = c.packet_time(3_599_900_000, 0);
+        let t = c.packet_time(20_000, fix + 700_000_000);
+        assert_eq!(t, (20_780 * 86_400 + 11 * 3600) * NS_PER_S + 20_000_000);
+        // One from before the wrap, arriving 70 ms late, to 10:59.
+        let t = c.packet_time(3_599_950_000, fix + 710_000_000);
         assert_eq!(
             t,
-            (20_780 * 86_400 + 10 * 3600) * NS_PER_S + 3_599_900_000_000
+            (20_780 * 86_400 + 10 * 3600) * NS_PER_S + 3_599_950_000_000
         );
         assert_eq!(c.source(), TimeSource::Gps);
+    }
+
+    #[test]
+    fn gps_time_stays_right_long_after_the_last_fix() {
+        // One fix at 10:10, then the PPS drops: two hours of packets (one per second) must keep
+        // their time across both hour wraps. (Anchoring to the fix's own hour put every packet
+        // from 10:40 on an hour early.)
+        let mut c = Clock::new();
+        let mut buf = [0u8; POSITION_PAYLOAD_LEN];
+        let mut p = PositionPacket::new_unchecked(&mut buf[..]);
+        let day = 20_780 * 86_400 * NS_PER_S;
+        let fix = day + (10 * 3600 + 10 * 60) * NS_PER_S;
+        p.set_pps_status(PpsStatus::Locked);
+        p.set_nmea(format_rmc(fix).as_bytes());
+        p.set_timestamp_us(600_000_000);
+        assert!(c.observe_position(&PositionPacket::new_unchecked(&buf[..])));
+        for s in 0..7200u64 {
+            let counter = ((600 + s) % 3600) * 1_000_000;
+            let t = c.packet_time(counter as u32, fix + s * NS_PER_S);
+            assert_eq!(t, fix + s * NS_PER_S, "{s} s after the fix");
+        }
+        assert_eq!(c.stats().hour_wraps, 2);
     }
 
     #[test]

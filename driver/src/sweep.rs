@@ -22,7 +22,8 @@ pub struct Sweep {
     pub points: Vec<Point>,
     /// Time of the first firing, ns since the epoch.
     pub start_ns: u64,
-    /// Time of the last firing, ns since the epoch.
+    /// Time of the last return, ns since the epoch (of the last firing sequence's first laser
+    /// when that sequence had no return): within one sequence (55 µs) of the last firing.
     pub end_ns: u64,
     /// Data packets that contributed returns (a packet straddling the cut counts in both
     /// sweeps).
