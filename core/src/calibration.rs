@@ -200,12 +200,11 @@ mod tests {
     use crate::scan::ScanPoint;
 
     /// Rings of a VLP-16 hitting a flat floor 1 m below, with reflectivity 100·ρ·cos α.
-    fn floor_scan(rho: f32) -> Vec<ScanPoint> {
+    fn floor_scan(rho: f32, elevations: &[f32]) -> Vec<ScanPoint> {
         let mut pts = Vec::new();
         for c in 0..1800 {
             let az = c as f32 * 0.2f32.to_radians();
-            // Down to −10°: the floor's incidence stays under the 80° floor on cos α.
-            for (ring, el) in [-15.0f32, -13.0, -11.0, -10.0].iter().enumerate() {
+            for (ring, el) in elevations.iter().enumerate() {
                 let el = el.to_radians();
                 let dir = Vector3::new(el.cos() * az.cos(), -el.cos() * az.sin(), el.sin());
                 let range = -1.0 / dir.z;
@@ -223,7 +222,8 @@ mod tests {
 
     #[test]
     fn calibration_removes_the_incidence_angle() {
-        let pts = floor_scan(0.6);
+        // Rings steep enough that the floor's incidence stays under the 72.5° trust limit.
+        let pts = floor_scan(0.6, &[-25.0, -22.0, -20.0, -18.0]);
         let scan = Scan {
             points: &pts,
             rings: 4,
@@ -238,16 +238,31 @@ mod tests {
             .filter(|e| e.is_finite())
             .collect();
         assert!(etas.len() > pts.len() * 9 / 10);
-        // Raw values range from 100·0.6·sin 10° ≈ 10 to 100·0.6·sin 15° ≈ 16; calibrated ≈ 60,
+        // Raw values range from 100·0.6·sin 18° ≈ 19 to 100·0.6·sin 25° ≈ 25; calibrated ≈ 60,
         // up to the rounding of the raw value (±0.5 / cos α).
         for e in etas {
-            assert!((e - 60.0).abs() < 4.0, "{e}");
+            assert!((e - 60.0).abs() < 2.0, "{e}");
         }
     }
 
     #[test]
+    fn grazing_returns_are_not_trusted() {
+        // At −15° to −10° the floor is seen at 75°–80° incidence: beyond the trust limit.
+        let pts = floor_scan(0.6, &[-15.0, -13.0, -11.0, -10.0]);
+        let scan = Scan {
+            points: &pts,
+            rings: 4,
+            reference_ns: 0,
+        };
+        let mut image = RangeImage::default();
+        image.build(&scan, &CalibrationConfig::default());
+        assert!(image.eta.iter().all(|e| e.is_nan()));
+        assert!(image.valid.iter().all(|&v| v), "still valid for geometry");
+    }
+
+    #[test]
     fn retro_reflectors_keep_their_value_and_weak_returns_are_invalid() {
-        let mut pts = floor_scan(0.5);
+        let mut pts = floor_scan(0.5, &[-25.0, -22.0, -20.0, -18.0]);
         pts[100].reflectivity = 200;
         pts[101].reflectivity = 0;
         let scan = Scan {

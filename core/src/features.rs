@@ -338,7 +338,15 @@ mod tests {
         let mut image = RangeImage::default();
         image.build(&scan, &CalibrationConfig::default());
         let mut f = SweepFeatures::default();
-        FeatureSelector::default().select(&scan, &mut image, &FeatureConfig::default(), &mut f);
+        FeatureSelector::default().select(
+            &scan,
+            &mut image,
+            &FeatureConfig {
+                intensity_weight: 0.03,
+                ..FeatureConfig::default()
+            },
+            &mut f,
+        );
         let near_stripe = |p: [f32; 3]| {
             (p[0] - 5.0).abs() < 0.05 && ((p[1] - 1.0).abs() < 0.2 || (p[1] - 1.3).abs() < 0.2)
         };

@@ -96,6 +96,7 @@ pub struct Odometry {
     velocity: Vector6<f64>,
     input: AlignmentInput,
     sweeps: u64,
+    known_poses: bool,
 }
 
 /// Sweeps between evictions of map cells far from the robot.
@@ -119,6 +120,7 @@ impl Odometry {
             velocity: Vector6::zeros(),
             input: AlignmentInput::default(),
             sweeps: 0,
+            known_poses: false,
         }
     }
 
@@ -136,17 +138,47 @@ impl Odometry {
     pub fn register(
         &mut self,
         features: &SweepFeatures,
+        on_stage: impl FnMut(Stage),
+    ) -> OdometryEstimate {
+        // Step 0: constant-velocity prediction.
+        let prediction = match self.last {
+            Some((t, pose)) if features.reference_ns > t => {
+                let dt = (features.reference_ns - t) as f64 * 1e-9;
+                pose * exp(&(self.velocity * dt))
+            }
+            Some((_, pose)) => pose,
+            None => Isometry3::identity(),
+        };
+        self.register_from(features, prediction, on_stage)
+    }
+
+    /// Registers one sweep whose true pose is known (ground truth, in diagnostics): aligns it
+    /// from that pose to measure how far the scan alone would move it, but grows the map and
+    /// takes the motion from the known pose. The estimate's `pose` is the alignment's.
+    pub fn register_at_known_pose(
+        &mut self,
+        features: &SweepFeatures,
+        pose: Isometry3<f64>,
+        on_stage: impl FnMut(Stage),
+    ) -> OdometryEstimate {
+        self.known_poses = true;
+        let estimate = self.register_from(features, pose, on_stage);
+        self.known_poses = false;
+        estimate
+    }
+
+    /// Registers one sweep from a given prediction of its pose (another sensor's, or ground
+    /// truth in tests) instead of the constant-velocity one.
+    pub fn register_from(
+        &mut self,
+        features: &SweepFeatures,
+        prediction: Isometry3<f64>,
         mut on_stage: impl FnMut(Stage),
     ) -> OdometryEstimate {
         let time_ns = features.reference_ns;
-        // Step 0: constant-velocity prediction and deskew.
-        let (prediction, interval) = match self.last {
-            Some((t, pose)) if time_ns > t => {
-                let dt = (time_ns - t) as f64 * 1e-9;
-                (pose * exp(&(self.velocity * dt)), dt)
-            }
-            Some((_, pose)) => (pose, 0.0),
-            None => (Isometry3::identity(), 0.0),
+        let interval = match self.last {
+            Some((t, _)) if time_ns > t => (time_ns - t) as f64 * 1e-9,
+            _ => 0.0,
         };
         self.deskew(features, &self.velocity.clone());
         on_stage(Stage::Deskew);
@@ -219,6 +251,31 @@ impl Odometry {
         on_stage(Stage::Align);
 
         let pose = alignment.pose;
+        if self.known_poses {
+            // Mapping with known poses: the alignment above only measures where the scan would
+            // have put the sensor; the map and the motion follow the given pose.
+            if interval > 0.0 {
+                let (_, previous) = self.last.expect("tracking has a last pose");
+                self.velocity = clamp_twist(log(&(previous.inverse() * prediction)) / interval);
+            }
+            self.deskew(features, &self.velocity.clone());
+            self.grow_maps(features, &prediction);
+            self.last = Some((time_ns, prediction));
+            self.sweeps += 1;
+            on_stage(Stage::MapUpdate);
+            let status = if alignment.degenerate {
+                TrackingStatus::Degenerate
+            } else {
+                TrackingStatus::Tracking
+            };
+            return OdometryEstimate {
+                time_ns,
+                pose,
+                velocity: self.velocity,
+                status,
+                alignment: Some(alignment),
+            };
+        }
         self.grow_maps(features, &pose);
         self.last = Some((time_ns, pose));
         self.sweeps += 1;

@@ -661,3 +661,108 @@ mod tests {
         );
     }
 }
+
+#[cfg(test)]
+mod jacobian_tests {
+    use super::*;
+    use crate::config::{IntensityMapConfig, LocalMapConfig};
+    use crate::se3::exp;
+
+    /// The intensity residual's analytic gradient of the cost equals the finite-difference one,
+    /// for rotation and translation alike.
+    #[test]
+    fn intensity_gradient_matches_finite_differences() {
+        let mut map = IntensityMap::new(&IntensityMapConfig {
+            voxel: 0.2,
+            max_count: 20,
+            min_weight: 0.5,
+        });
+        let field = |p: &Vector3<f64>| {
+            50.0 + 20.0 * (1.3 * p.x).sin() + 10.0 * (0.7 * p.y + 0.4 * p.z).cos()
+        };
+        for i in -60..60 {
+            for j in -60..60 {
+                for k in -10..10 {
+                    let p = Vector3::new(
+                        i as f64 * 0.1 + 0.05,
+                        j as f64 * 0.1 + 0.05,
+                        k as f64 * 0.1 + 0.05,
+                    );
+                    map.insert(&p.cast(), field(&p) as f32);
+                }
+            }
+        }
+        let pose = exp(&Vector6::new(0.05, -0.03, 0.2, 0.3, -0.2, 0.1));
+        let points: Vec<IntensityPoint> = (0..40)
+            .map(|i| {
+                let p = Vector3::new(
+                    (i % 7) as f64 * 0.6 - 2.0,
+                    (i % 5) as f64 * 0.5 - 1.0,
+                    (i % 3) as f64 * 0.2 - 0.2,
+                );
+                IntensityPoint {
+                    point: p,
+                    eta: field(&p) + 3.0,
+                    normal: Vector3::zeros(),
+                }
+            })
+            .collect();
+        let input = AlignmentInput {
+            edges: vec![],
+            planes: vec![],
+            intensity: points,
+        };
+        let config = SolverConfig {
+            huber_intensity: 1e9,
+            intensity_weight: 0.01,
+            ..SolverConfig::default()
+        };
+        let system = build(&pose, &[], &input, &map, &config);
+        for axis in 0..6 {
+            let mut d = Vector6::zeros();
+            d[axis] = 1e-6;
+            let plus = build(&(exp(&d) * pose), &[], &input, &map, &config).cost;
+            let minus = build(&(exp(&-d) * pose), &[], &input, &map, &config).cost;
+            let fd = (plus - minus) / 2e-6;
+            assert!(
+                (fd - system.gradient[axis]).abs() < 1e-3 * (1.0 + fd.abs()),
+                "axis {axis}: fd {fd} vs {}",
+                system.gradient[axis]
+            );
+        }
+    }
+
+    #[test]
+    fn geometric_gradient_matches_finite_differences() {
+        let model = Model {
+            point: Vector3::new(1.0, 2.0, 0.5),
+            center: Vector3::new(0.8, 2.5, 0.4),
+            projection: {
+                let n = Vector3::new(0.3, -0.5, 0.8).normalize();
+                n * n.transpose()
+            },
+        };
+        let edges = LocalMap::new(&LocalMapConfig::default());
+        let _ = edges;
+        let map = IntensityMap::new(&IntensityMapConfig::default());
+        let input = AlignmentInput::default();
+        let config = SolverConfig {
+            huber_geometric: 1e9,
+            ..SolverConfig::default()
+        };
+        let pose = exp(&Vector6::new(0.1, 0.2, -0.3, 0.5, 0.1, -0.2));
+        let system = build(&pose, &[model], &input, &map, &config);
+        for axis in 0..6 {
+            let mut d = Vector6::zeros();
+            d[axis] = 1e-6;
+            let plus = build(&(exp(&d) * pose), &[model], &input, &map, &config).cost;
+            let minus = build(&(exp(&-d) * pose), &[model], &input, &map, &config).cost;
+            let fd = (plus - minus) / 2e-6;
+            assert!(
+                (fd - system.gradient[axis]).abs() < 1e-6 * (1.0 + fd.abs()),
+                "axis {axis}: fd {fd} vs {}",
+                system.gradient[axis]
+            );
+        }
+    }
+}

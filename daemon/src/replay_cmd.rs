@@ -12,9 +12,10 @@ use glint_core::features::SweepFeatures;
 use glint_core::metrics::{associate, ate_rmse, relative_errors, WAREHOUSE_LENGTHS};
 use glint_core::odometry::{FrontEnd, Odometry, Stage, TrackingStatus};
 use glint_core::scan::{Scan, ScanPoint};
-use glint_core::trajectory::{parse_tum, StampedPose};
+use glint_core::trajectory::{interpolate, parse_tum, StampedPose};
 use glint_core::world_map::WorldMap;
 use glint_driver::Sweep;
+use nalgebra::{Isometry3, Vector3};
 
 use crate::capture::{replay, SensorArgs};
 use crate::outputs::{write_map, TrajectoryWriter};
@@ -44,11 +45,21 @@ pub struct ReplayArgs {
     /// Ground truth (TUM) to evaluate against.
     #[arg(long)]
     pub groundtruth: Option<PathBuf>,
+    /// Diagnostic: start every sweep's alignment from the ground truth and grow the map from it,
+    /// and report how far alignment alone moves the pose off the truth (needs --groundtruth).
+    #[arg(long)]
+    pub seed_from_groundtruth: bool,
     /// Voxel size of the exported map, m.
     #[arg(long, default_value_t = 0.1)]
     pub map_voxel: f32,
     #[command(flatten)]
     pub sensor: SensorArgs,
+}
+
+fn read_tum(path: &std::path::Path) -> Result<Vec<StampedPose>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    parse_tum(&text).with_context(|| path.display().to_string())
 }
 
 /// Converts a driver sweep to the odometry's input.
@@ -108,6 +119,18 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     let mut features = SweepFeatures::default();
     let mut timings = Timings::default();
     let mut statuses = [0usize; 4];
+    let groundtruth = args.groundtruth.as_deref().map(read_tum).transpose()?;
+    let known_poses = if args.seed_from_groundtruth {
+        Some(
+            groundtruth
+                .as_ref()
+                .context("--seed-from-groundtruth needs --groundtruth")?,
+        )
+    } else {
+        None
+    };
+    let mut origin: Option<Isometry3<f64>> = None;
+    let mut departures: Vec<Vector3<f64>> = Vec::new();
     let report = replay(&args.capture, &args.sensor, |sweep| {
         let Some(reference_ns) = sweep.points.last().map(|p| p.time_ns) else {
             return Ok(());
@@ -122,14 +145,25 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         front_end.process(&scan, &mut features);
         let after_front = Instant::now();
         let mut marks = [after_front; 3];
-        let estimate = odometry.register(&features, |stage| {
+        // The map frame is the first sweep's sensor frame: ground truth is expressed in it.
+        let known = known_poses
+            .and_then(|gt| interpolate(gt, reference_ns))
+            .map(|g| *origin.get_or_insert(g.inverse()) * g);
+        let hook = |stage| {
             let i = match stage {
                 Stage::Deskew => 0,
                 Stage::Align => 1,
                 Stage::MapUpdate => 2,
             };
             marks[i] = Instant::now();
-        });
+        };
+        let estimate = match known {
+            Some(pose) => odometry.register_at_known_pose(&features, pose, hook),
+            None => odometry.register(&features, hook),
+        };
+        if let Some(pose) = known {
+            departures.push((estimate.pose.inverse() * pose).translation.vector);
+        }
         let end = Instant::now();
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
         timings.total.push(ms(start, end));
@@ -177,6 +211,20 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         write_map(path, &map.points())?;
     }
 
+    if !departures.is_empty() {
+        let n = departures.len() as f64;
+        let mean = departures.iter().sum::<Vector3<f64>>() / n;
+        let rms = (departures
+            .iter()
+            .map(|e| e.component_mul(e))
+            .sum::<Vector3<f64>>()
+            / n)
+            .map(f64::sqrt);
+        say!(
+            "seeded from ground truth: alignment moves the pose off the truth by mean ({:.4}, {:.4}, {:.4}) m, rms ({:.4}, {:.4}, {:.4}) m (sensor x, y, z)",
+            mean.x, mean.y, mean.z, rms.x, rms.y, rms.z
+        );
+    }
     let n = timings.total.len();
     say!(
         "sweeps: {n} ({} initialising, {} tracking, {} degenerate, {} lost){}",

@@ -1,0 +1,123 @@
+//! End to end on the simulator: its packets through our driver (stream, sweeps) and the
+//! odometry, measured against its ground truth. Seeds are chosen here, not tuned on.
+
+use glint_core::config::OdometryConfig;
+use glint_core::features::SweepFeatures;
+use glint_core::metrics::{associate, ate_rmse, relative_errors, WAREHOUSE_LENGTHS};
+use glint_core::odometry::{FrontEnd, Odometry, TrackingStatus};
+use glint_core::scan::{Scan, ScanPoint};
+use glint_core::trajectory::StampedPose;
+use glint_driver::{SensorStream, StreamConfig};
+use glint_sim::simulation::PacketKind;
+use glint_sim::{Scenario, SimConfig, Simulation};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+
+struct Run {
+    estimates: Vec<StampedPose>,
+    groundtruth: Vec<StampedPose>,
+    statuses: Vec<TrackingStatus>,
+}
+
+fn run(scenario: Scenario, seed: u64, seconds: f64, config: &OdometryConfig) -> Run {
+    let sim_config = SimConfig {
+        scenario,
+        seed,
+        seconds,
+        ..SimConfig::default()
+    };
+    let mut sim = Simulation::new(&sim_config).expect("the scenario builds");
+    let mut stream = SensorStream::new(StreamConfig::default());
+    let mut front_end = FrontEnd::new(config);
+    let mut odometry = Odometry::new(config);
+    let mut features = SweepFeatures::default();
+    let mut points = Vec::new();
+    let mut estimates = Vec::new();
+    let mut statuses = Vec::new();
+    let mut sweeps = Vec::new();
+    while let Some(packet) = sim.next_packet() {
+        let result = match packet.kind {
+            PacketKind::Data => stream.push_data(packet.payload, packet.time_ns),
+            PacketKind::Position => stream.push_position(packet.payload),
+        };
+        result.expect("simulated packets are valid");
+        sweeps.extend(std::iter::from_fn(|| stream.take_sweep()));
+        for sweep in sweeps.drain(..) {
+            let Some(reference_ns) = sweep.points.last().map(|p| p.time_ns) else {
+                continue;
+            };
+            points.clear();
+            points.extend(sweep.points.iter().map(|p| ScanPoint {
+                position: [p.x, p.y, p.z],
+                time_ns: p.time_ns,
+                reflectivity: p.reflectivity,
+                ring: p.ring,
+            }));
+            front_end.process(
+                &Scan {
+                    points: &points,
+                    rings: 16,
+                    reference_ns,
+                },
+                &mut features,
+            );
+            let e = odometry.register(&features, |_| {});
+            estimates.push(StampedPose {
+                time_ns: e.time_ns,
+                pose: e.pose,
+            });
+            statuses.push(e.status);
+        }
+    }
+    // Dense ground truth from the simulator itself, every 10 ms over the run.
+    let first = estimates.first().map_or(0, |e| e.time_ns);
+    let last = estimates.last().map_or(0, |e| e.time_ns);
+    let groundtruth = (first..=last)
+        .step_by(10_000_000)
+        .chain(std::iter::once(last))
+        .map(|t| {
+            let p = sim.sensor_pose_at(t);
+            let rotation = UnitQuaternion::from_rotation_matrix(&p.rotation);
+            let translation = Translation3::new(p.translation.x, p.translation.y, p.translation.z);
+            StampedPose {
+                time_ns: t,
+                pose: Isometry3::from_parts(translation, rotation),
+            }
+        })
+        .collect();
+    Run {
+        estimates,
+        groundtruth,
+        statuses,
+    }
+}
+
+#[test]
+fn warehouse_odometry_with_intensity_stays_under_half_a_percent() {
+    let r = run(Scenario::Warehouse, 21, 40.0, &OdometryConfig::default());
+    let pairs = associate(&r.estimates, &r.groundtruth);
+    assert!(pairs.len() > 350, "{} poses associated", pairs.len());
+    let drift = relative_errors(&pairs, &WAREHOUSE_LENGTHS).expect("segments fit");
+    let ate = ate_rmse(&pairs).expect("poses");
+    eprintln!("warehouse seed 21: {drift}; {ate}");
+    assert!(drift.overall.translation_pct <= 0.5, "{drift}");
+    assert!(ate.rmse <= 0.10, "{ate}");
+    assert!(
+        r.statuses
+            .iter()
+            .filter(|s| **s == TrackingStatus::Lost)
+            .count()
+            == 0
+    );
+}
+
+#[test]
+fn replaying_the_same_packets_gives_the_same_poses_bit_for_bit() {
+    let a = run(Scenario::Warehouse, 5, 6.0, &OdometryConfig::default());
+    let b = run(Scenario::Warehouse, 5, 6.0, &OdometryConfig::default());
+    assert!(a.estimates.len() > 50);
+    for (x, y) in a.estimates.iter().zip(&b.estimates) {
+        assert_eq!(x.time_ns, y.time_ns);
+        assert_eq!(x.pose.translation.vector, y.pose.translation.vector);
+        assert_eq!(x.pose.rotation, y.pose.rotation);
+    }
+}
