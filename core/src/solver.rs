@@ -199,13 +199,17 @@ fn damped_step(
 /// Information below this fraction of the strongest direction's is treated as none.
 const NULL_INFORMATION: f64 = 1e-6;
 
-fn associate_edges(
+/// For each point, fits a model to its nearest map neighbours at the current pose: `fit` turns
+/// the neighbourhood (centroid, eigenvalues ascending, eigenvectors, the neighbours) into the
+/// residual's projection, or rejects it. Returns how many points got a model.
+fn associate(
     pose: &Isometry3<f64>,
     points: &[Vector3<f64>],
     map: &LocalMap,
     config: &SolverConfig,
     neighbours: &mut Vec<Vector3<f32>>,
     models: &mut Vec<Model>,
+    fit: impl Fn(&Vector3<f64>, &[f64; 3], &[Vector3<f64>; 3], &[Vector3<f32>]) -> Option<Matrix3<f64>>,
 ) -> usize {
     let mut count = 0;
     for p in points {
@@ -220,20 +224,44 @@ fn associate_edges(
             continue;
         }
         let (center, values, vectors) = covariance(neighbours);
-        if values[2] < config.line_ratio * values[1] {
-            continue;
+        if let Some(projection) = fit(&center, &values, &vectors, neighbours) {
+            models.push(Model {
+                point: *p,
+                center,
+                projection,
+            });
+            count += 1;
         }
-        let direction = vectors[2];
-        models.push(Model {
-            point: *p,
-            center,
-            projection: Matrix3::identity() - direction * direction.transpose(),
-        });
-        count += 1;
     }
     count
 }
 
+/// Lines: the neighbours must spread along one direction (largest eigenvalue dominant); the
+/// residual is the distance to the line, its projection the line's normal space.
+fn associate_edges(
+    pose: &Isometry3<f64>,
+    points: &[Vector3<f64>],
+    map: &LocalMap,
+    config: &SolverConfig,
+    neighbours: &mut Vec<Vector3<f32>>,
+    models: &mut Vec<Model>,
+) -> usize {
+    associate(
+        pose,
+        points,
+        map,
+        config,
+        neighbours,
+        models,
+        |_, values, vectors, _| {
+            (values[2] >= config.line_ratio * values[1])
+                .then(|| Matrix3::identity() - vectors[2] * vectors[2].transpose())
+        },
+    )
+}
+
+/// Planes: every neighbour within the tolerance of the plane through them; the residual is the
+/// distance along the normal (the smallest eigenvector).
 fn associate_planes(
     pose: &Isometry3<f64>,
     points: &[Vector3<f64>],
@@ -242,34 +270,20 @@ fn associate_planes(
     neighbours: &mut Vec<Vector3<f32>>,
     models: &mut Vec<Model>,
 ) -> usize {
-    let mut count = 0;
-    for p in points {
-        let q = pose * Point3::from(*p);
-        map.nearest(
-            &q.coords.cast(),
-            config.neighbours,
-            config.max_neighbour_distance,
-            neighbours,
-        );
-        if neighbours.len() < config.neighbours {
-            continue;
-        }
-        let (center, _, vectors) = covariance(neighbours);
-        let normal = vectors[0];
-        if neighbours
-            .iter()
-            .any(|n| (n.cast::<f64>() - center).dot(&normal).abs() > config.plane_tolerance)
-        {
-            continue;
-        }
-        models.push(Model {
-            point: *p,
-            center,
-            projection: normal * normal.transpose(),
-        });
-        count += 1;
-    }
-    count
+    associate(
+        pose,
+        points,
+        map,
+        config,
+        neighbours,
+        models,
+        |center, _, vectors, near| {
+            let normal = vectors[0];
+            near.iter()
+                .all(|n| (n.cast::<f64>() - center).dot(&normal).abs() <= config.plane_tolerance)
+                .then(|| normal * normal.transpose())
+        },
+    )
 }
 
 /// Centroid, eigenvalues (ascending) and unit eigenvectors of the covariance of `points`.
