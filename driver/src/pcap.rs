@@ -674,6 +674,90 @@ mod tests {
         assert!(CaptureReader::from_reader(std::io::Cursor::new(Vec::new())).is_err());
     }
 
+    /// A pcapng built by hand: section header, an interface (Linux SLL2, nanosecond resolution
+    /// via `if_tsresol`), and two enhanced packets, one of them not UDP.
+    fn pcapng(payload: &[u8]) -> Vec<u8> {
+        fn block(kind: u32, body: &[u8]) -> Vec<u8> {
+            let len = 12 + body.len().div_ceil(4) * 4;
+            let mut b = Vec::new();
+            b.extend_from_slice(&kind.to_le_bytes());
+            b.extend_from_slice(&(len as u32).to_le_bytes());
+            b.extend_from_slice(body);
+            b.resize(len - 4, 0);
+            b.extend_from_slice(&(len as u32).to_le_bytes());
+            b
+        }
+        let mut shb = Vec::new();
+        shb.extend_from_slice(&0x1A2B_3C4Du32.to_le_bytes());
+        shb.extend_from_slice(&1u16.to_le_bytes());
+        shb.extend_from_slice(&0u16.to_le_bytes());
+        shb.extend_from_slice(&(-1i64).to_le_bytes());
+        let mut idb = Vec::new();
+        idb.extend_from_slice(&276u16.to_le_bytes()); // LINKTYPE_LINUX_SLL2
+        idb.extend_from_slice(&0u16.to_le_bytes());
+        idb.extend_from_slice(&0u32.to_le_bytes());
+        idb.extend_from_slice(&[9, 0, 1, 0, 9, 0, 0, 0]); // if_tsresol = 10⁻⁹
+        idb.extend_from_slice(&[0, 0, 0, 0]); // opt_endofopt
+        let frame = |ip_payload_protocol: u8| {
+            let mut f = vec![0x08, 0x00];
+            f.extend_from_slice(&[0u8; 18]);
+            let total = 20 + 8 + payload.len();
+            f.extend_from_slice(&[
+                0x45,
+                0,
+                (total >> 8) as u8,
+                total as u8,
+                0,
+                0,
+                0x40,
+                0,
+                64,
+                ip_payload_protocol,
+                0,
+                0,
+            ]);
+            f.extend_from_slice(&[192, 168, 1, 201, 255, 255, 255, 255]);
+            f.extend_from_slice(&2368u16.to_be_bytes());
+            f.extend_from_slice(&2368u16.to_be_bytes());
+            f.extend_from_slice(&((8 + payload.len()) as u16).to_be_bytes());
+            f.extend_from_slice(&[0, 0]);
+            f.extend_from_slice(payload);
+            f
+        };
+        let epb = |ts: u64, f: &[u8]| {
+            let mut b = Vec::new();
+            b.extend_from_slice(&0u32.to_le_bytes());
+            b.extend_from_slice(&((ts >> 32) as u32).to_le_bytes());
+            b.extend_from_slice(&(ts as u32).to_le_bytes());
+            b.extend_from_slice(&(f.len() as u32).to_le_bytes());
+            b.extend_from_slice(&(f.len() as u32).to_le_bytes());
+            b.extend_from_slice(f);
+            b.resize(20 + f.len().div_ceil(4) * 4, 0);
+            block(6, &b)
+        };
+        let mut out = block(0x0A0D_0D0A, &shb);
+        out.extend(block(1, &idb));
+        out.extend(epb(1_700_000_000_123_456_789, &frame(6)));
+        out.extend(epb(1_700_000_000_123_456_790, &frame(17)));
+        out
+    }
+
+    #[test]
+    fn pcapng_with_sll2_and_nanosecond_times() {
+        let bytes = pcapng(&[5u8; 1206]);
+        let mut r = CaptureReader::from_reader(std::io::Cursor::new(bytes.clone())).unwrap();
+        let d = r.next().unwrap().unwrap();
+        assert_eq!(d.time_ns, 1_700_000_000_123_456_790);
+        assert_eq!((d.destination_port, d.payload.len()), (2368, 1206));
+        assert!(r.next().unwrap().is_none());
+        assert_eq!(r.stats().not_udp, 1);
+        // Cut inside the last block: the first packets still come, then the offset.
+        let mut r =
+            CaptureReader::from_reader(std::io::Cursor::new(bytes[..bytes.len() - 10].to_vec()))
+                .unwrap();
+        assert!(matches!(r.next(), Err(CaptureError::Truncated { .. })));
+    }
+
     #[test]
     fn vlan_sll_and_options() {
         // An IPv4 header with one 4-byte option (IHL 6), UDP to 2368 with a 3-byte payload.
