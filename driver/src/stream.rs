@@ -253,7 +253,15 @@ impl SensorStream {
     }
 
     fn decide(&mut self) -> Result<(), StreamError> {
-        let detection = self.detector.decide(self.config.model)?;
+        let detection = match self.detector.decide(self.config.model) {
+            Ok(d) => d,
+            Err(e) => {
+                // Undecodable: drop what was held (the error is reported for every packet that
+                // follows, and the buffer must not grow on a live stream).
+                self.held.clear();
+                return Err(e.into());
+            }
+        };
         let model = detection.model;
         let table = match &self.config.calibration {
             Some(table) if table.len() != model.timing().lasers => {
@@ -300,5 +308,51 @@ impl SensorStream {
         }
         self.last_packet = Some((time, azimuth));
         assembler.push(packet, time, receive_ns);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::wire::{BLOCK_FLAG, DATA_PAYLOAD_LEN};
+
+    /// Packets whose device time advances 80 µs per block: no known sensor.
+    fn odd_packet(i: u32) -> [u8; DATA_PAYLOAD_LEN] {
+        let mut buf = [0u8; DATA_PAYLOAD_LEN];
+        let mut p = DataPacket::new_unchecked(&mut buf[..]);
+        for b in 0..BLOCKS_PER_PACKET {
+            p.set_block_flag(b, BLOCK_FLAG);
+            p.set_azimuth(b, ((i * 480 + b as u32 * 40) % 36_000) as u16);
+        }
+        p.set_timestamp_us(i * 960);
+        p.set_return_mode(ReturnMode::Strongest);
+        p.set_product_id(0x99);
+        buf
+    }
+
+    #[test]
+    fn an_undecodable_stream_is_an_error_that_holds_no_memory() {
+        let mut stream = SensorStream::new(StreamConfig::default());
+        let mut errors = 0;
+        for i in 0..200 {
+            if let Err(e) = stream.push_data(&odd_packet(i), u64::from(i) * 960_000) {
+                assert!(!e.is_recoverable(), "{e}");
+                errors += 1;
+            }
+            assert!(stream.held.len() <= HOLD_PACKETS);
+        }
+        assert!(errors > 150);
+        assert!(stream.detection().is_none());
+    }
+
+    #[test]
+    fn a_configured_model_decides_at_the_first_packet() {
+        let config = StreamConfig {
+            model: Some(Model::Vlp16),
+            ..StreamConfig::default()
+        };
+        let mut stream = SensorStream::new(config);
+        stream.push_data(&odd_packet(0), 0).unwrap();
+        assert_eq!(stream.detection().unwrap().model, Model::Vlp16);
     }
 }
