@@ -15,9 +15,12 @@ macro_rules! say {
 
 mod capture;
 mod decode_cmd;
+mod demo_cmd;
+mod echo_cmd;
 mod eval_cmd;
 mod info_cmd;
 mod outputs;
+mod publish;
 mod replay_cmd;
 mod sim_cmd;
 
@@ -31,6 +34,8 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// The whole chain on a built-in simulated warehouse: no sensor, no files, no flags needed.
+    Demo(demo_cmd::DemoArgs),
     /// Print what a capture holds: model, return mode, packets, sweeps, rpm, time span, gaps.
     Info(info_cmd::InfoArgs),
     /// Decode every return of a capture to CSV (or PLY when the name ends in .ply).
@@ -41,6 +46,8 @@ enum Command {
     Eval(eval_cmd::EvalArgs),
     /// Simulate a VLP-16 on a robot in a scenario: pcap, ground truth and scene description.
     Sim(sim_cmd::SimArgs),
+    /// Print the poses (or status) a running glintd publishes.
+    Echo(echo_cmd::EchoArgs),
 }
 
 fn print_line(args: std::fmt::Arguments<'_>) {
@@ -63,7 +70,13 @@ fn main() -> ExitCode {
         )
         .with_writer(std::io::stderr)
         .init();
+    // iceoryx2 logs on its own; only its errors matter here unless IOX2_LOG_LEVEL says more.
+    glint_ipc::iceoryx2::prelude::set_log_level_from_env_or(
+        glint_ipc::iceoryx2::prelude::LogLevel::Error,
+    );
     let result = match cli.command {
+        Command::Demo(args) => demo_cmd::run(args),
+        Command::Echo(args) => echo_cmd::run(args),
         Command::Info(args) => info_cmd::run(args),
         Command::Decode(args) => decode_cmd::run(args),
         Command::Replay(args) => replay_cmd::run(args),

@@ -19,6 +19,8 @@ use nalgebra::{Isometry3, Vector3};
 
 use crate::capture::{replay, SensorArgs};
 use crate::outputs::{write_map, TrajectoryWriter};
+use crate::publish::PoseBus;
+use glint_ipc::Status;
 
 /// Arguments of `glintd replay`.
 #[derive(Args, Debug)]
@@ -49,6 +51,12 @@ pub struct ReplayArgs {
     /// and report how far alignment alone moves the pose off the truth (needs --groundtruth).
     #[arg(long)]
     pub seed_from_groundtruth: bool,
+    /// Service-name prefix of the poses published over iceoryx2 (`glint/<domain>/odom`, …).
+    #[arg(long, default_value = "default")]
+    pub domain: String,
+    /// Do not publish poses over iceoryx2.
+    #[arg(long)]
+    pub no_publish: bool,
     /// Voxel size of the exported map, m.
     #[arg(long, default_value_t = 0.1)]
     pub map_voxel: f32,
@@ -119,6 +127,17 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     let mut features = SweepFeatures::default();
     let mut timings = Timings::default();
     let mut statuses = [0usize; 4];
+    let mut bus = if args.no_publish {
+        None
+    } else {
+        match PoseBus::create(&args.domain) {
+            Ok(bus) => Some(bus),
+            Err(e) => {
+                tracing::warn!("poses will not be published: {e:#}");
+                None
+            }
+        }
+    };
     let groundtruth = args.groundtruth.as_deref().map(read_tum).transpose()?;
     let known_poses = if args.seed_from_groundtruth {
         Some(
@@ -183,6 +202,20 @@ pub fn run(args: ReplayArgs) -> Result<()> {
             TrackingStatus::Degenerate => 2,
             TrackingStatus::Lost => 3,
         }] += 1;
+        if let Some(b) = bus.as_mut() {
+            let features_used = estimate
+                .alignment
+                .as_ref()
+                .map_or(0, |a| a.edges + a.planes);
+            let offered = (features.edges.len() + features.planes.len()).max(1);
+            b.publish(&estimate, features_used as f32 / offered as f32)?;
+            if timings.total.len() % 10 == 0 {
+                let mut status = Status::new(0, estimate.time_ns);
+                status.sweeps_processed = timings.total.len() as u64;
+                status.sweep_rate_hz = (1e3 / timings.total.last().copied().unwrap_or(1.0)) as f32;
+                b.publish_status(status)?;
+            }
+        }
         let stamped = StampedPose {
             time_ns: estimate.time_ns,
             pose: estimate.pose,
