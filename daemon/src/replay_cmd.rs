@@ -156,9 +156,16 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         };
         let start = Instant::now();
         scan_points(sweep, &mut points);
+        // 16 rings for the VLP-16 family, 32 for the HDL-32E: whatever the sweep holds.
+        let rings = sweep
+            .points
+            .iter()
+            .map(|p| usize::from(p.ring) + 1)
+            .max()
+            .unwrap_or(16);
         let scan = Scan {
             points: &points,
-            rings: 16,
+            rings,
             reference_ns,
         };
         front_end.process(&scan, &mut features);
