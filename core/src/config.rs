@@ -165,8 +165,9 @@ pub struct SolverConfig {
     pub convergence: f64,
     /// Fewer geometric correspondences than this: the sweep is not trusted (lost).
     pub min_correspondences: usize,
-    /// The smallest eigenvalue of the geometric normal equations per correspondence below
-    /// which the pose is reported degenerate.
+    /// The smallest eigenvalue of the plane correspondences' translational information per
+    /// correspondence (0–1/3) below which the pose is reported degenerate. Measured on the
+    /// simulated runs: corridor 0.002–0.005, warehouse ≥ 0.068, yard ≥ 0.022.
     pub degeneracy_threshold: f64,
 }
 
@@ -185,7 +186,7 @@ impl Default for SolverConfig {
             huber_intensity: 0.1,
             convergence: 1e-4,
             min_correspondences: 30,
-            degeneracy_threshold: 0.02,
+            degeneracy_threshold: 0.01,
         }
     }
 }

@@ -60,8 +60,9 @@ pub struct Alignment {
     pub planes: usize,
     /// See `edges`.
     pub intensity: usize,
-    /// Smallest eigenvalue of the geometric translational information per correspondence, in
-    /// [0, 1/3]: near 0 when some direction of travel is unconstrained by geometry.
+    /// Smallest eigenvalue of the translational information of the plane correspondences per
+    /// correspondence, in [0, 1/3] (1/3: normals spread evenly over all directions; near 0:
+    /// some direction of travel is unconstrained by geometry).
     pub degeneracy: f64,
     /// The direction (world frame) geometry constrains least.
     pub weakest_direction: Vector3<f64>,
@@ -151,8 +152,7 @@ pub fn align(
         }
     }
     let system = build(&pose, &models, input, maps.intensity, config);
-    let geometric = models.len().max(1) as f64;
-    let translational = system.geometric_translation / geometric;
+    let translational = system.geometric_translation / system.planes.max(1) as f64;
     let eigen = SymmetricEigen::new(translational);
     let (weakest, degeneracy) = eigen
         .eigenvalues
@@ -366,6 +366,7 @@ struct System {
     count: usize,
     intensity: usize,
     geometric_translation: Matrix3<f64>,
+    planes: usize,
 }
 
 /// Huber weight and cost of a residual of norm `r` with threshold `k`.
@@ -392,6 +393,7 @@ fn build(
         count: 0,
         intensity: 0,
         geometric_translation: Matrix3::zeros(),
+        planes: 0,
     };
     for m in models {
         let q = (pose * Point3::from(m.point)).coords;
@@ -404,7 +406,13 @@ fn build(
         j.fixed_view_mut::<3, 3>(0, 3).copy_from(&m.projection);
         s.hessian += w * j.transpose() * j;
         s.gradient += w * j.transpose() * e;
-        s.geometric_translation += m.projection.transpose() * m.projection;
+        // The degeneracy measure reads planes only: their normals are well determined, while an
+        // edge line fitted through a few noisy map points can point anywhere and would count as
+        // information along a corridor's axis.
+        if m.projection.trace() < 1.5 {
+            s.geometric_translation += m.projection;
+            s.planes += 1;
+        }
         s.cost += cost;
         s.count += 1;
     }

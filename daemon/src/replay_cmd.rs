@@ -92,6 +92,7 @@ struct Timings {
     planes: Vec<f64>,
     intensity: Vec<f64>,
     iterations: Vec<f64>,
+    degeneracy: Vec<f64>,
 }
 
 fn percentile(v: &mut [f64], q: f64) -> f64 {
@@ -202,6 +203,7 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         timings.intensity.push(features.intensity.len() as f64);
         if let Some(a) = &estimate.alignment {
             timings.iterations.push(a.iterations as f64);
+            timings.degeneracy.push(a.degeneracy);
         }
         statuses[match estimate.status {
             TrackingStatus::Initialising => 0,
@@ -297,6 +299,11 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         percentile(&mut timings.planes, 0.5),
         percentile(&mut timings.intensity, 0.5),
         percentile(&mut timings.iterations, 0.5)
+    );
+    say!(
+        "degeneracy (smallest translational information per plane correspondence, 0–1/3): median {:.4}, min {:.4}",
+        percentile(&mut timings.degeneracy, 0.5),
+        percentile(&mut timings.degeneracy, 0.0)
     );
     let (edges, planes, cells) = odometry.map_sizes();
     say!("local map: {edges} edge points, {planes} plane points, {cells} intensity cells");

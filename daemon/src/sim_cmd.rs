@@ -59,6 +59,9 @@ pub struct SimArgs {
     /// Turn off range and reflectivity noise (the per-laser gain bias stays: it is the unit's).
     #[arg(long)]
     pub no_noise: bool,
+    /// Spread of the per-laser reflectivity gain (±fraction, 0–0.2; 0 for an ideal unit).
+    #[arg(long, default_value_t = 0.03, allow_negative_numbers = true)]
+    pub laser_gain_bias: f64,
     /// Probability that a data packet is lost, in [0, 1).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub packet_loss: f64,
@@ -97,6 +100,7 @@ impl SimArgs {
             return_mode: self.return_mode.into(),
             range_noise_m: self.noise_sigma,
             noise: !self.no_noise,
+            laser_gain_bias: self.laser_gain_bias,
             packet_loss: self.packet_loss,
             start_time_ns,
             ..SimConfig::default()
