@@ -16,6 +16,40 @@ use crate::scan::Scan;
 const MIN_BASELINE: f32 = 0.2;
 const MAX_STEPS: usize = 20;
 
+/// Steps out from a point through `candidate(1)`, `candidate(2)`, … (`None` ends the walk)
+/// until one lies at least [`MIN_BASELINE`] from `p`; the last one reached.
+fn step_out(
+    max_steps: usize,
+    candidate: impl Fn(usize) -> Option<usize>,
+    pos: &impl Fn(usize) -> Vector3<f32>,
+    p: &Vector3<f32>,
+) -> Option<usize> {
+    let mut best = None;
+    for d in 1..=max_steps {
+        let Some(j) = candidate(d) else { break };
+        best = Some(j);
+        if (pos(j) - p).norm() >= MIN_BASELINE {
+            break;
+        }
+    }
+    best
+}
+
+/// The tangent through `p` from its neighbours on either side: central when both exist,
+/// one-sided otherwise.
+fn span(
+    before: Option<Vector3<f32>>,
+    after: Option<Vector3<f32>>,
+    p: &Vector3<f32>,
+) -> Option<Vector3<f32>> {
+    match (before, after) {
+        (Some(a), Some(b)) => Some(b - a),
+        (Some(a), None) => Some(p - a),
+        (None, Some(b)) => Some(b - p),
+        (None, None) => None,
+    }
+}
+
 /// Columns of the range image: 0.2°, the VLP-16's horizontal step at 600 rpm.
 pub const COLUMNS: usize = 1800;
 const EMPTY: u32 = u32::MAX;
@@ -155,65 +189,49 @@ impl RangeImage {
         let p = pos(i);
         let range = self.range[i];
         let members = &self.ring_points[ring];
-        // Along the ring: two points either side (a wider baseline than one averages out range
-        // noise), falling back to one side at the ends.
         // Along the ring: the farthest point either side within the surface gate, stepping out
         // until the baseline reaches MIN_BASELINE (a wall 2 m away puts neighbours 7 mm apart,
         // below the range noise, so adjacent points give noise for a normal).
         let near =
             |j: usize| (pos(j) - p).norm() < config.neighbour_gap * range * 4.0 + MIN_BASELINE;
-        let reach = |step: &dyn Fn(usize) -> Option<usize>| {
-            let mut best = None;
-            for d in 1..=MAX_STEPS {
-                let Some(j) = step(d) else { break };
-                if !near(j) {
-                    break;
-                }
-                best = Some(j);
-                if (pos(j) - p).norm() >= MIN_BASELINE {
-                    break;
-                }
-            }
-            best
-        };
-        let before = reach(&|d| k.checked_sub(d).map(|kk| members[kk] as usize));
-        let after = reach(&|d| members.get(k + d).map(|&j| j as usize));
-        let along = match (before, after) {
-            (Some(a), Some(b)) => pos(b) - pos(a),
-            (Some(a), None) => p - pos(a),
-            (None, Some(b)) => pos(b) - p,
-            (None, None) => return None,
-        };
-        // Across the rings, at the same azimuth. Floors seen at a low angle put adjacent rings
-        // far apart, so the gate is wide; the surface test is the normal's consistency.
+        let before = step_out(
+            MAX_STEPS,
+            |d| {
+                k.checked_sub(d)
+                    .map(|kk| members[kk] as usize)
+                    .filter(|&j| near(j))
+            },
+            &pos,
+            &p,
+        );
+        let after = step_out(
+            MAX_STEPS,
+            |d| members.get(k + d).map(|&j| j as usize).filter(|&j| near(j)),
+            &pos,
+            &p,
+        );
+        let along = span(before.map(&pos), after.map(&pos), &p)?;
+        // Across the rings, at the same azimuth: one ring away, or two when one is closer than
+        // the baseline. Floors seen at a low angle put adjacent rings far apart, so the gate is
+        // wide; the surface test is the normal's consistency.
         let column = usize::from(self.column[i]);
         let across_gate = |j: usize| (pos(j) - p).norm() < 0.5 * range + 0.2;
-        // One ring away, or two when one is closer than the baseline (near walls).
         let across_ring = |offset: isize| {
-            let mut best = None;
-            for d in 1..=2isize {
-                let r = ring as isize + offset * d;
-                if r < 0 || r >= self.rings as isize {
-                    break;
-                }
-                let Some(j) = self.at(r as usize, column).filter(|&j| across_gate(j)) else {
-                    break;
-                };
-                best = Some(j);
-                if (pos(j) - p).norm() >= MIN_BASELINE {
-                    break;
-                }
-            }
-            best
+            step_out(
+                2,
+                |d| {
+                    let r = ring as isize + offset * d as isize;
+                    (0..self.rings as isize)
+                        .contains(&r)
+                        .then(|| self.at(r as usize, column))
+                        .flatten()
+                        .filter(|&j| across_gate(j))
+                },
+                &pos,
+                &p,
+            )
         };
-        let up = across_ring(1);
-        let down = across_ring(-1);
-        let across = match (down, up) {
-            (Some(a), Some(b)) => pos(b) - pos(a),
-            (Some(a), None) => p - pos(a),
-            (None, Some(b)) => pos(b) - p,
-            (None, None) => return None,
-        };
+        let across = span(across_ring(-1).map(&pos), across_ring(1).map(&pos), &p)?;
         let normal = along.cross(&across);
         let norm = normal.norm();
         if norm < 1e-9 {
