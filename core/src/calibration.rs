@@ -248,6 +248,30 @@ mod tests {
     use super::*;
     use crate::scan::ScanPoint;
 
+    /// Calibrates a four-ring scan with the default configuration.
+    fn calibrate(pts: &[ScanPoint]) -> RangeImage {
+        let mut image = RangeImage::default();
+        image.build(
+            &Scan {
+                points: pts,
+                rings: 4,
+                reference_ns: 0,
+            },
+            &CalibrationConfig::default(),
+        );
+        image
+    }
+
+    /// The calibrated values that could be computed.
+    fn finite_etas(image: &RangeImage) -> Vec<f32> {
+        image
+            .eta
+            .iter()
+            .copied()
+            .filter(|e| e.is_finite())
+            .collect()
+    }
+
     /// Rings of a VLP-16 hitting a flat floor 1 m below, with reflectivity 100·ρ·cos α.
     fn floor_scan(rho: f32, elevations: &[f32]) -> Vec<ScanPoint> {
         let mut pts = Vec::new();
@@ -273,19 +297,8 @@ mod tests {
     fn calibration_removes_the_incidence_angle() {
         // Rings steep enough that the floor's incidence stays under the 72.5° trust limit.
         let pts = floor_scan(0.6, &[-25.0, -22.0, -20.0, -18.0]);
-        let scan = Scan {
-            points: &pts,
-            rings: 4,
-            reference_ns: 0,
-        };
-        let mut image = RangeImage::default();
-        image.build(&scan, &CalibrationConfig::default());
-        let etas: Vec<f32> = image
-            .eta
-            .iter()
-            .copied()
-            .filter(|e| e.is_finite())
-            .collect();
+        let image = calibrate(&pts);
+        let etas = finite_etas(&image);
         assert!(etas.len() > pts.len() * 9 / 10);
         // Raw values range from 100·0.6·sin 18° ≈ 19 to 100·0.6·sin 25° ≈ 25; calibrated ≈ 60,
         // up to the rounding of the raw value (±0.5 / cos α).
@@ -331,19 +344,8 @@ mod tests {
                 });
             }
         }
-        let scan = Scan {
-            points: &pts,
-            rings: 4,
-            reference_ns: 0,
-        };
-        let mut image = RangeImage::default();
-        image.build(&scan, &CalibrationConfig::default());
-        let etas: Vec<f32> = image
-            .eta
-            .iter()
-            .copied()
-            .filter(|e| e.is_finite())
-            .collect();
+        let image = calibrate(&pts);
+        let etas = finite_etas(&image);
         assert!(
             etas.len() > pts.len() / 2,
             "{} of {}",
@@ -362,13 +364,7 @@ mod tests {
     fn grazing_returns_are_not_trusted() {
         // At −15° to −10° the floor is seen at 75°–80° incidence: beyond the trust limit.
         let pts = floor_scan(0.6, &[-15.0, -13.0, -11.0, -10.0]);
-        let scan = Scan {
-            points: &pts,
-            rings: 4,
-            reference_ns: 0,
-        };
-        let mut image = RangeImage::default();
-        image.build(&scan, &CalibrationConfig::default());
+        let image = calibrate(&pts);
         assert!(image.eta.iter().all(|e| e.is_nan()));
         assert!(image.valid.iter().all(|&v| v), "still valid for geometry");
     }
@@ -378,13 +374,7 @@ mod tests {
         let mut pts = floor_scan(0.5, &[-25.0, -22.0, -20.0, -18.0]);
         pts[100].reflectivity = 200;
         pts[101].reflectivity = 0;
-        let scan = Scan {
-            points: &pts,
-            rings: 4,
-            reference_ns: 0,
-        };
-        let mut image = RangeImage::default();
-        image.build(&scan, &CalibrationConfig::default());
+        let image = calibrate(&pts);
         assert!(image.retro[100] && image.eta[100] == 200.0);
         assert!(!image.valid[101]);
     }

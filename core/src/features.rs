@@ -267,7 +267,6 @@ fn norm(v: [f32; 3]) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::CalibrationConfig;
     use crate::scan::ScanPoint;
 
     /// One ring sweeping two walls meeting at a corner (x = 5 and y = 5), with a painted stripe
@@ -296,22 +295,29 @@ mod tests {
         pts
     }
 
-    #[test]
-    fn corner_is_an_edge_and_walls_are_planes() {
+    /// The corner scan through calibration and selection with `config`.
+    fn corner_features(config: FeatureConfig) -> SweepFeatures {
         let pts = corner_scan();
         let scan = Scan {
             points: &pts,
             rings: 2,
             reference_ns: 449 * 55_296,
         };
-        let mut image = RangeImage::default();
-        image.build(&scan, &CalibrationConfig::default());
         let mut f = SweepFeatures::default();
-        let config = FeatureConfig {
+        let odometry = crate::config::OdometryConfig {
+            features: config,
+            ..Default::default()
+        };
+        crate::odometry::FrontEnd::new(&odometry).process(&scan, &mut f);
+        f
+    }
+
+    #[test]
+    fn corner_is_an_edge_and_walls_are_planes() {
+        let f = corner_features(FeatureConfig {
             intensity_weight: 0.0,
             ..FeatureConfig::default()
-        };
-        FeatureSelector::default().select(&scan, &mut image, &config, &mut f);
+        });
         assert!(!f.planes.is_empty());
         assert!(
             f.edges
@@ -329,24 +335,10 @@ mod tests {
 
     #[test]
     fn intensity_roughness_finds_the_stripe() {
-        let pts = corner_scan();
-        let scan = Scan {
-            points: &pts,
-            rings: 2,
-            reference_ns: 449 * 55_296,
-        };
-        let mut image = RangeImage::default();
-        image.build(&scan, &CalibrationConfig::default());
-        let mut f = SweepFeatures::default();
-        FeatureSelector::default().select(
-            &scan,
-            &mut image,
-            &FeatureConfig {
-                intensity_weight: 0.03,
-                ..FeatureConfig::default()
-            },
-            &mut f,
-        );
+        let f = corner_features(FeatureConfig {
+            intensity_weight: 0.03,
+            ..FeatureConfig::default()
+        });
         let near_stripe = |p: [f32; 3]| {
             (p[0] - 5.0).abs() < 0.05 && ((p[1] - 1.0).abs() < 0.2 || (p[1] - 1.3).abs() < 0.2)
         };

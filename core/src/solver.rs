@@ -100,21 +100,26 @@ pub fn align(
     for _ in 0..config.outer_iterations.max(1) {
         let round_start = pose;
         models.clear();
-        edges = associate_edges(
+        let line = |_: &_, values: &_, vectors: &_, _: &_| line_model(config, values, vectors);
+        let plane =
+            |center: &_, _: &_, vectors: &_, near: &_| plane_model(config, center, vectors, near);
+        edges = associate(
             &pose,
             &input.edges,
             maps.edges,
             config,
             &mut neighbours,
             &mut models,
+            line,
         );
-        planes = associate_planes(
+        planes = associate(
             &pose,
             &input.planes,
             maps.planes,
             config,
             &mut neighbours,
             &mut models,
+            plane,
         );
         let mut converged = false;
         let mut system = build(&pose, &models, input, maps.intensity, config);
@@ -238,52 +243,27 @@ fn associate(
 
 /// Lines: the neighbours must spread along one direction (largest eigenvalue dominant); the
 /// residual is the distance to the line, its projection the line's normal space.
-fn associate_edges(
-    pose: &Isometry3<f64>,
-    points: &[Vector3<f64>],
-    map: &LocalMap,
+fn line_model(
     config: &SolverConfig,
-    neighbours: &mut Vec<Vector3<f32>>,
-    models: &mut Vec<Model>,
-) -> usize {
-    associate(
-        pose,
-        points,
-        map,
-        config,
-        neighbours,
-        models,
-        |_, values, vectors, _| {
-            (values[2] >= config.line_ratio * values[1])
-                .then(|| Matrix3::identity() - vectors[2] * vectors[2].transpose())
-        },
-    )
+    values: &[f64; 3],
+    vectors: &[Vector3<f64>; 3],
+) -> Option<Matrix3<f64>> {
+    (values[2] >= config.line_ratio * values[1])
+        .then(|| Matrix3::identity() - vectors[2] * vectors[2].transpose())
 }
 
 /// Planes: every neighbour within the tolerance of the plane through them; the residual is the
 /// distance along the normal (the smallest eigenvector).
-fn associate_planes(
-    pose: &Isometry3<f64>,
-    points: &[Vector3<f64>],
-    map: &LocalMap,
+fn plane_model(
     config: &SolverConfig,
-    neighbours: &mut Vec<Vector3<f32>>,
-    models: &mut Vec<Model>,
-) -> usize {
-    associate(
-        pose,
-        points,
-        map,
-        config,
-        neighbours,
-        models,
-        |center, _, vectors, near| {
-            let normal = vectors[0];
-            near.iter()
-                .all(|n| (n.cast::<f64>() - center).dot(&normal).abs() <= config.plane_tolerance)
-                .then(|| normal * normal.transpose())
-        },
-    )
+    center: &Vector3<f64>,
+    vectors: &[Vector3<f64>; 3],
+    near: &[Vector3<f32>],
+) -> Option<Matrix3<f64>> {
+    let normal = vectors[0];
+    near.iter()
+        .all(|n| (n.cast::<f64>() - center).dot(&normal).abs() <= config.plane_tolerance)
+        .then(|| normal * normal.transpose())
 }
 
 /// Centroid, eigenvalues (ascending) and unit eigenvectors of the covariance of `points`.
