@@ -1,8 +1,13 @@
 //! Every parameter of the odometry in one place, grouped by the step of `method.md` it belongs
 //! to, with defaults that work on a VLP-16 at 10 Hz. Each stage receives only its own section.
+//! The structs deserialise from the daemon's TOML (every key optional, unknown keys refused) and
+//! [`OdometryConfig::validate`] refuses values no run could work with.
+
+use serde::Deserialize;
 
 /// Step 1: intensity calibration.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct CalibrationConfig {
     /// Floor on cos α, so grazing returns do not explode (cos 80°).
     pub min_cos_incidence: f32,
@@ -32,7 +37,8 @@ impl Default for CalibrationConfig {
 }
 
 /// Step 2: salient points.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct FeatureConfig {
     /// Neighbours on each side used for roughness.
     pub neighbours: usize,
@@ -91,7 +97,8 @@ impl Default for FeatureConfig {
 }
 
 /// Step 3: the intensity map.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct IntensityMapConfig {
     /// Voxel edge, m.
     pub voxel: f32,
@@ -112,7 +119,8 @@ impl Default for IntensityMapConfig {
 }
 
 /// Step 4: the local edge and plane maps.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct LocalMapConfig {
     /// Hash cell edge, m (neighbour search looks at the 27 cells around a query).
     pub cell: f32,
@@ -136,7 +144,8 @@ impl Default for LocalMapConfig {
 }
 
 /// Step 4: the scan-to-map solver.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SolverConfig {
     /// Associate, then solve: this many times per sweep.
     pub outer_iterations: usize,
@@ -192,7 +201,8 @@ impl Default for SolverConfig {
 }
 
 /// The whole odometry.
-#[derive(Debug, Clone, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct OdometryConfig {
     /// Step 1.
     pub calibration: CalibrationConfig,
@@ -214,5 +224,255 @@ impl OdometryConfig {
         c.features.intensity_weight = 0.0;
         c.solver.use_intensity = false;
         c
+    }
+}
+
+/// A configuration value no run could work with.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{key} = {value}: {reason}")]
+pub struct InvalidConfig {
+    /// The key, dotted from the odometry section (`solver.huber_geometric`).
+    pub key: &'static str,
+    /// The value given.
+    pub value: String,
+    /// What it must be.
+    pub reason: &'static str,
+}
+
+impl OdometryConfig {
+    /// Checks every value that has a hard limit (positive sizes, ordered ranges, fractions).
+    pub fn validate(&self) -> Result<(), InvalidConfig> {
+        fn check<T: std::fmt::Display>(
+            key: &'static str,
+            value: T,
+            ok: bool,
+            reason: &'static str,
+        ) -> Result<(), InvalidConfig> {
+            if ok {
+                Ok(())
+            } else {
+                Err(InvalidConfig {
+                    key,
+                    value: value.to_string(),
+                    reason,
+                })
+            }
+        }
+        let positive = "must be a finite number > 0";
+        let (c, f, i, l, s) = (
+            &self.calibration,
+            &self.features,
+            &self.intensity_map,
+            &self.local_map,
+            &self.solver,
+        );
+        let pos32 = |v: f32| v.is_finite() && v > 0.0;
+        let pos64 = |v: f64| v.is_finite() && v > 0.0;
+        let cos = |v: f32| v.is_finite() && v > 0.0 && v <= 1.0;
+        check(
+            "calibration.min_cos_incidence",
+            c.min_cos_incidence,
+            cos(c.min_cos_incidence),
+            "must be in (0, 1]",
+        )?;
+        check(
+            "calibration.min_reliable_cos",
+            c.min_reliable_cos,
+            cos(c.min_reliable_cos),
+            "must be in (0, 1]",
+        )?;
+        check(
+            "calibration.neighbour_gap",
+            c.neighbour_gap,
+            pos32(c.neighbour_gap),
+            positive,
+        )?;
+        check(
+            "calibration.max_calibrated",
+            c.max_calibrated,
+            pos32(c.max_calibrated),
+            positive,
+        )?;
+        check(
+            "features.neighbours",
+            f.neighbours,
+            (1..=32).contains(&f.neighbours),
+            "must be in 1..=32",
+        )?;
+        check(
+            "features.sectors",
+            f.sectors,
+            (1..=360).contains(&f.sectors),
+            "must be in 1..=360",
+        )?;
+        check(
+            "features.geometric_weight",
+            f.geometric_weight,
+            f.geometric_weight.is_finite() && f.geometric_weight >= 0.0,
+            "must be a finite number >= 0",
+        )?;
+        check(
+            "features.intensity_weight",
+            f.intensity_weight,
+            f.intensity_weight.is_finite() && f.intensity_weight >= 0.0,
+            "must be a finite number >= 0",
+        )?;
+        check(
+            "features.edge_threshold",
+            f.edge_threshold,
+            pos32(f.edge_threshold),
+            positive,
+        )?;
+        check(
+            "features.plane_threshold",
+            f.plane_threshold,
+            pos32(f.plane_threshold),
+            positive,
+        )?;
+        check(
+            "features.range_noise",
+            f.range_noise,
+            pos32(f.range_noise),
+            positive,
+        )?;
+        check(
+            "features.min_range",
+            f.min_range,
+            f.min_range.is_finite() && f.min_range >= 0.0,
+            "must be a finite number >= 0",
+        )?;
+        check(
+            "features.max_range",
+            f.max_range,
+            f.max_range.is_finite() && f.max_range > f.min_range,
+            "must be finite and > features.min_range",
+        )?;
+        check(
+            "features.plane_voxel",
+            f.plane_voxel,
+            pos32(f.plane_voxel),
+            positive,
+        )?;
+        check("intensity_map.voxel", i.voxel, pos32(i.voxel), positive)?;
+        check(
+            "intensity_map.max_count",
+            i.max_count,
+            i.max_count > 0,
+            "must be > 0",
+        )?;
+        check(
+            "intensity_map.min_weight",
+            i.min_weight,
+            i.min_weight.is_finite() && (0.0..=1.0).contains(&i.min_weight),
+            "must be in [0, 1]",
+        )?;
+        check("local_map.cell", l.cell, pos32(l.cell), positive)?;
+        check(
+            "local_map.points_per_cell",
+            l.points_per_cell,
+            l.points_per_cell > 0,
+            "must be > 0",
+        )?;
+        check(
+            "local_map.min_spacing",
+            l.min_spacing,
+            l.min_spacing.is_finite() && l.min_spacing >= 0.0,
+            "must be a finite number >= 0",
+        )?;
+        check(
+            "local_map.radius",
+            l.radius,
+            l.radius.is_finite() && l.radius > l.cell,
+            "must be finite and > local_map.cell",
+        )?;
+        check(
+            "solver.outer_iterations",
+            s.outer_iterations,
+            s.outer_iterations > 0,
+            "must be > 0",
+        )?;
+        check(
+            "solver.inner_iterations",
+            s.inner_iterations,
+            s.inner_iterations > 0,
+            "must be > 0",
+        )?;
+        check(
+            "solver.neighbours",
+            s.neighbours,
+            (3..=32).contains(&s.neighbours),
+            "must be in 3..=32",
+        )?;
+        check(
+            "solver.max_neighbour_distance",
+            s.max_neighbour_distance,
+            pos32(s.max_neighbour_distance),
+            positive,
+        )?;
+        check(
+            "solver.line_ratio",
+            s.line_ratio,
+            s.line_ratio.is_finite() && s.line_ratio >= 1.0,
+            "must be a finite number >= 1",
+        )?;
+        check(
+            "solver.plane_tolerance",
+            s.plane_tolerance,
+            pos64(s.plane_tolerance),
+            positive,
+        )?;
+        check(
+            "solver.huber_geometric",
+            s.huber_geometric,
+            pos64(s.huber_geometric),
+            positive,
+        )?;
+        check(
+            "solver.intensity_weight",
+            s.intensity_weight,
+            s.intensity_weight.is_finite() && s.intensity_weight >= 0.0,
+            "must be a finite number >= 0",
+        )?;
+        check(
+            "solver.huber_intensity",
+            s.huber_intensity,
+            pos64(s.huber_intensity),
+            positive,
+        )?;
+        check(
+            "solver.convergence",
+            s.convergence,
+            pos64(s.convergence),
+            positive,
+        )?;
+        check(
+            "solver.degeneracy_threshold",
+            s.degeneracy_threshold,
+            s.degeneracy_threshold.is_finite() && s.degeneracy_threshold >= 0.0,
+            "must be a finite number >= 0",
+        )?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid() {
+        assert_eq!(OdometryConfig::default().validate(), Ok(()));
+        assert_eq!(OdometryConfig::geometry_only().validate(), Ok(()));
+    }
+
+    #[test]
+    fn an_impossible_value_names_its_key() {
+        let mut c = OdometryConfig::default();
+        c.local_map.radius = 0.5;
+        let e = c.validate().unwrap_err();
+        assert_eq!(e.key, "local_map.radius");
+        c = OdometryConfig::default();
+        c.solver.huber_geometric = f64::NAN;
+        assert_eq!(c.validate().unwrap_err().key, "solver.huber_geometric");
     }
 }

@@ -83,9 +83,34 @@ pub fn replay(
     sensor: &SensorArgs,
     mut on_sweep: impl FnMut(&Sweep) -> Result<()>,
 ) -> Result<CaptureReport> {
-    let mut source = PcapSource::open(path, sensor.ports())
+    replay_stream(
+        path,
+        sensor.ports(),
+        sensor.stream_config()?,
+        |_, _| true,
+        |sweep, stream| {
+            on_sweep(&sweep)?;
+            if let Some(r) = stream.recycler() {
+                r.recycle(sweep);
+            }
+            Ok(())
+        },
+    )
+}
+
+/// Replays `path` through a fresh stream configured by `config`. `on_packet` sees each sensor
+/// packet's record time and the stream before the packet is decoded (for pacing and counters)
+/// and returns false to stop early; `on_sweep` takes each sweep as it is closed.
+pub fn replay_stream(
+    path: &Path,
+    ports: Ports,
+    config: StreamConfig,
+    mut on_packet: impl FnMut(u64, &SensorStream) -> bool,
+    mut on_sweep: impl FnMut(Sweep, &SensorStream) -> Result<()>,
+) -> Result<CaptureReport> {
+    let mut source = PcapSource::open(path, ports)
         .with_context(|| format!("cannot replay {}", path.display()))?;
-    let mut stream = SensorStream::new(sensor.stream_config()?);
+    let mut stream = SensorStream::new(config);
     let mut dropped_logged = 0u32;
     let mut handle = |stream: &mut SensorStream, result: Result<(), StreamError>| -> Result<()> {
         match result {
@@ -99,16 +124,16 @@ pub fn replay(
             Err(e) => return Err(e).context(format!("cannot decode {}", path.display())),
         }
         while let Some(sweep) = stream.take_sweep() {
-            on_sweep(&sweep)?;
-            if let Some(r) = stream.recycler() {
-                r.recycle(sweep);
-            }
+            on_sweep(sweep, stream)?;
         }
         Ok(())
     };
     let damage = loop {
         match source.next() {
             Ok(Some(p)) => {
+                if !on_packet(p.receive_ns, &stream) {
+                    break None;
+                }
                 let result = match p.kind {
                     PacketKind::Data => stream.push_data(p.payload, p.receive_ns),
                     PacketKind::Position => stream.push_position(p.payload),

@@ -10,6 +10,7 @@ use clap::Args;
 use glint_sim::{Scenario, SimConfig};
 
 use crate::capture::SensorArgs;
+use crate::pipeline::Pace;
 use crate::replay_cmd::{self, ReplayArgs};
 
 /// Arguments of `glintd demo`.
@@ -47,7 +48,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         glint_sim::simulate_to_dir(&config, &args.out).context("the simulation failed")?;
     say!("{}", summary.report().trim_end());
     say!(
-        "replaying it through the driver and the odometry, publishing on iceoryx2 domain {:?} …",
+        "replaying it through the pipeline (driver, front end, odometry), publishing on iceoryx2 domain {:?} …",
         args.domain
     );
     replay_cmd::run(ReplayArgs {
@@ -62,6 +63,8 @@ pub fn run(args: DemoArgs) -> Result<()> {
         domain: args.domain.clone(),
         no_publish: false,
         map_voxel: 0.1,
+        pace: Pace::Max,
+        predicted_rate: 50.0,
         sensor: SensorArgs {
             model: None,
             calibration: None,

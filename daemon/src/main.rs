@@ -14,14 +14,19 @@ macro_rules! say {
 }
 
 mod capture;
+mod config;
 mod decode_cmd;
 mod demo_cmd;
 mod echo_cmd;
 mod eval_cmd;
 mod info_cmd;
 mod outputs;
+mod pipeline;
 mod publish;
+mod record_cmd;
 mod replay_cmd;
+mod run_cmd;
+mod signals;
 mod sim_cmd;
 
 /// Glint: intensity-assisted LiDAR localisation for VLP-16 AGVs.
@@ -34,13 +39,15 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// The live daemon: listen for the sensor, publish poses over iceoryx2 (see --config).
+    Run(run_cmd::RunArgs),
     /// The whole chain on a built-in simulated warehouse: no sensor, no files, no flags needed.
     Demo(demo_cmd::DemoArgs),
     /// Print what a capture holds: model, return mode, packets, sweeps, rpm, time span, gaps.
     Info(info_cmd::InfoArgs),
     /// Decode every return of a capture to CSV (or PLY when the name ends in .ply).
     Decode(decode_cmd::DecodeArgs),
-    /// Run a capture through the odometry: trajectory, map, timing and accuracy.
+    /// Run a capture through the pipeline at any pace: trajectory, map, timing and accuracy.
     Replay(replay_cmd::ReplayArgs),
     /// Compare two TUM trajectories: relative drift and absolute trajectory error.
     Eval(eval_cmd::EvalArgs),
@@ -48,6 +55,8 @@ enum Command {
     Sim(sim_cmd::SimArgs),
     /// Print the poses (or status) a running glintd publishes.
     Echo(echo_cmd::EchoArgs),
+    /// Capture the sensor's packets into a pcap for later replay.
+    Record(record_cmd::RecordArgs),
 }
 
 fn print_line(args: std::fmt::Arguments<'_>) {
@@ -61,21 +70,41 @@ fn print_line(args: std::fmt::Arguments<'_>) {
     }
 }
 
+/// Logs go to journald when systemd connected stderr to the journal (it sets `JOURNAL_STREAM`),
+/// human-readable to stderr otherwise. `GLINT_LOG` filters (`info`, `glintd=debug`, …).
+fn init_logging(default_level: &str) {
+    use tracing_subscriber::prelude::*;
+    let filter = tracing_subscriber::EnvFilter::try_from_env("GLINT_LOG")
+        .unwrap_or_else(|_| default_level.into());
+    let journald = std::env::var_os("JOURNAL_STREAM").and_then(|_| tracing_journald::layer().ok());
+    match journald {
+        Some(layer) => tracing_subscriber::registry()
+            .with(filter)
+            .with(layer)
+            .init(),
+        None => tracing_subscriber::registry()
+            .with(filter)
+            .with(tracing_subscriber::fmt::layer().with_writer(std::io::stderr))
+            .init(),
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_env("GLINT_LOG")
-                .unwrap_or_else(|_| "warn".into()),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    // The daemon's modes report once a second; the tools only warn.
+    let default_level = match cli.command {
+        Command::Run(_) | Command::Record(_) => "info",
+        _ => "warn",
+    };
+    init_logging(default_level);
     // iceoryx2 logs on its own; only its errors matter here unless IOX2_LOG_LEVEL says more.
     glint_ipc::iceoryx2::prelude::set_log_level_from_env_or(
         glint_ipc::iceoryx2::prelude::LogLevel::Error,
     );
     let result = match cli.command {
         Command::Demo(args) => demo_cmd::run(args),
+        Command::Run(args) => run_cmd::run(args),
+        Command::Record(args) => record_cmd::run(args),
         Command::Echo(args) => echo_cmd::run(args),
         Command::Info(args) => info_cmd::run(args),
         Command::Decode(args) => decode_cmd::run(args),

@@ -9,22 +9,26 @@ use anyhow::{Context, Result};
 use glint_core::trajectory::{format_kitti_line, format_tum_line, StampedPose};
 use glint_core::world_map::MapPoint;
 
-/// A trajectory file written pose by pose as the run goes.
+/// A trajectory file written pose by pose as the run goes. With a size limit it rotates: the
+/// full file becomes `<name>.1` (replacing the previous one) and a new one starts, so a run of
+/// months keeps at most twice the limit on disk.
 pub struct TrajectoryWriter {
     path: PathBuf,
     out: BufWriter<File>,
     kitti: bool,
+    max_bytes: Option<u64>,
+    written: u64,
 }
 
 impl TrajectoryWriter {
     /// Creates a TUM (`kitti == false`) or KITTI trajectory file.
-    pub fn create(path: &Path, kitti: bool) -> Result<Self> {
-        let file =
-            File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+    pub fn create(path: &Path, kitti: bool, max_bytes: Option<u64>) -> Result<Self> {
         Ok(Self {
             path: path.to_path_buf(),
-            out: BufWriter::new(file),
+            out: BufWriter::new(create(path)?),
             kitti,
+            max_bytes,
+            written: 0,
         })
     }
 
@@ -35,16 +39,48 @@ impl TrajectoryWriter {
         } else {
             format_tum_line(pose)
         };
+        if self
+            .max_bytes
+            .is_some_and(|max| self.written + line.len() as u64 + 1 > max)
+        {
+            self.rotate()?;
+        }
         writeln!(self.out, "{line}")
+            .with_context(|| format!("cannot write {}", self.path.display()))?;
+        self.written += line.len() as u64 + 1;
+        Ok(())
+    }
+
+    fn rotate(&mut self) -> Result<()> {
+        self.flush()?;
+        let mut old = self.path.clone().into_os_string();
+        old.push(".1");
+        std::fs::rename(&self.path, &old)
+            .with_context(|| format!("cannot rotate {}", self.path.display()))?;
+        self.out = BufWriter::new(create(&self.path)?);
+        self.written = 0;
+        Ok(())
+    }
+
+    /// Pushes what is buffered to the file.
+    pub fn flush(&mut self) -> Result<()> {
+        self.out
+            .flush()
             .with_context(|| format!("cannot write {}", self.path.display()))
     }
 
     /// Flushes to disk.
     pub fn finish(mut self) -> Result<()> {
+        self.flush()?;
         self.out
-            .flush()
+            .get_ref()
+            .sync_data()
             .with_context(|| format!("cannot write {}", self.path.display()))
     }
+}
+
+fn create(path: &Path) -> Result<File> {
+    File::create(path).with_context(|| format!("cannot create {}", path.display()))
 }
 
 /// Writes a map: binary PCD (x y z intensity, readable by PCL, Open3D and CloudCompare), or
@@ -76,4 +112,52 @@ pub fn write_map(path: &Path, points: &[MapPoint]) -> Result<()> {
     }
     out.flush()
         .with_context(|| format!("cannot write {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Isometry3;
+
+    #[test]
+    fn a_trajectory_rotates_at_its_size_limit() {
+        let dir = std::env::temp_dir().join(format!("glint-rotate-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("t.tum");
+        let mut w = TrajectoryWriter::create(&path, false, Some(4096)).unwrap();
+        for i in 0..200u64 {
+            w.write(&StampedPose {
+                time_ns: 1_000_000_000 * i,
+                pose: Isometry3::identity(),
+            })
+            .unwrap();
+        }
+        w.finish().unwrap();
+        let current = std::fs::metadata(&path).unwrap().len();
+        let old = std::fs::metadata(dir.join("t.tum.1")).unwrap().len();
+        assert!(
+            current <= 4096 && old <= 4096 && old > 3000,
+            "{current} {old}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_full_disk_is_an_error() {
+        let Ok(mut w) = TrajectoryWriter::create(Path::new("/dev/full"), false, None) else {
+            return; // no /dev/full here
+        };
+        let pose = StampedPose {
+            time_ns: 1,
+            pose: Isometry3::identity(),
+        };
+        let mut failed = false;
+        for _ in 0..10_000 {
+            if w.write(&pose).is_err() {
+                failed = true;
+                break;
+            }
+        }
+        assert!(failed || w.flush().is_err());
+    }
 }

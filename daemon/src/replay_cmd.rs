@@ -1,26 +1,21 @@
-//! `glintd replay`: a capture through the odometry as fast as the machine allows, writing the
+//! `glintd replay`: a capture through the pipeline (the threads `glintd run` uses) at any pace,
+//! as fast as the machine allows by default, writing the
 //! trajectory (one pose per sweep, stamped with the sweep's reference time) and the whole run's
 //! map, and printing timing and — with ground truth — accuracy.
 
 use std::path::PathBuf;
-use std::time::Instant;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::Args;
 use glint_core::config::OdometryConfig;
-use glint_core::features::SweepFeatures;
 use glint_core::metrics::{associate, ate_rmse, relative_errors, WAREHOUSE_LENGTHS};
-use glint_core::odometry::{FrontEnd, Odometry, Stage, TrackingStatus};
-use glint_core::scan::{Scan, ScanPoint};
-use glint_core::trajectory::{interpolate, parse_tum, StampedPose};
-use glint_core::world_map::WorldMap;
-use glint_driver::Sweep;
+use glint_core::trajectory::{parse_tum, StampedPose};
 use nalgebra::{Isometry3, Vector3};
 
-use crate::capture::{replay, SensorArgs};
-use crate::outputs::{write_map, TrajectoryWriter};
-use crate::publish::PoseBus;
-use glint_ipc::Status;
+use crate::capture::SensorArgs;
+use crate::pipeline::{self, Input, Options, Pace, PublishOptions};
 
 /// Arguments of `glintd replay`.
 #[derive(Args, Debug)]
@@ -60,6 +55,13 @@ pub struct ReplayArgs {
     /// Voxel size of the exported map, m.
     #[arg(long, default_value_t = 0.1)]
     pub map_voxel: f32,
+    /// Replay speed: `max` (as fast as the machine allows), `realtime`, or a factor of real
+    /// time (`2`, `0.5`). The outputs are the same at any pace.
+    #[arg(long, default_value = "max")]
+    pub pace: Pace,
+    /// Rate of the predicted pose stream, Hz (0: off).
+    #[arg(long, default_value_t = 50.0)]
+    pub predicted_rate: f64,
     #[command(flatten)]
     pub sensor: SensorArgs,
 }
@@ -70,39 +72,6 @@ fn read_tum(path: &std::path::Path) -> Result<Vec<StampedPose>> {
     parse_tum(&text).with_context(|| path.display().to_string())
 }
 
-/// Converts a driver sweep to the odometry's input.
-pub fn scan_points(sweep: &Sweep, out: &mut Vec<ScanPoint>) {
-    out.clear();
-    out.extend(sweep.points.iter().map(|p| ScanPoint {
-        position: [p.x, p.y, p.z],
-        time_ns: p.time_ns,
-        reflectivity: p.reflectivity,
-        ring: p.ring,
-    }));
-}
-
-#[derive(Default)]
-struct Timings {
-    total: Vec<f64>,
-    front_end: Vec<f64>,
-    deskew: Vec<f64>,
-    align: Vec<f64>,
-    map: Vec<f64>,
-    edges: Vec<f64>,
-    planes: Vec<f64>,
-    intensity: Vec<f64>,
-    iterations: Vec<f64>,
-    degeneracy: Vec<f64>,
-}
-
-fn percentile(v: &mut [f64], q: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * q).round() as usize]
-}
-
 /// Runs the command.
 pub fn run(args: ReplayArgs) -> Result<()> {
     let config = if args.no_intensity {
@@ -110,149 +79,45 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     } else {
         OdometryConfig::default()
     };
-    let mut front_end = FrontEnd::new(&config);
-    let mut odometry = Odometry::new(&config);
-    let mut trajectory = args
-        .trajectory
-        .as_deref()
-        .map(|p| TrajectoryWriter::create(p, false))
-        .transpose()?;
-    let mut kitti = args
-        .kitti
-        .as_deref()
-        .map(|p| TrajectoryWriter::create(p, true))
-        .transpose()?;
-    let mut world = args.map.as_ref().map(|_| WorldMap::new(args.map_voxel));
-    let mut estimates = Vec::new();
-    let mut points = Vec::new();
-    let mut features = SweepFeatures::default();
-    let mut timings = Timings::default();
-    let mut statuses = [0usize; 4];
-    let mut bus = if args.no_publish {
-        None
-    } else {
-        match PoseBus::create(&args.domain) {
-            Ok(bus) => Some(bus),
-            Err(e) => {
-                tracing::warn!("poses will not be published: {e:#}");
-                None
-            }
-        }
-    };
     let groundtruth = args.groundtruth.as_deref().map(read_tum).transpose()?;
     let known_poses = if args.seed_from_groundtruth {
         Some(
             groundtruth
-                .as_ref()
+                .clone()
                 .context("--seed-from-groundtruth needs --groundtruth")?,
         )
     } else {
         None
     };
-    let mut origin: Option<Isometry3<f64>> = None;
-    let mut departures: Vec<Vector3<f64>> = Vec::new();
-    let report = replay(&args.capture, &args.sensor, |sweep| {
-        let Some(reference_ns) = sweep.points.last().map(|p| p.time_ns) else {
-            return Ok(());
-        };
-        let start = Instant::now();
-        scan_points(sweep, &mut points);
-        // 16 rings for the VLP-16 family, 32 for the HDL-32E: whatever the sweep holds.
-        let rings = sweep
-            .points
-            .iter()
-            .map(|p| usize::from(p.ring) + 1)
-            .max()
-            .unwrap_or(16);
-        let scan = Scan {
-            points: &points,
-            rings,
-            reference_ns,
-        };
-        front_end.process(&scan, &mut features);
-        let after_front = Instant::now();
-        let mut marks = [after_front; 3];
-        // The map frame is the first sweep's sensor frame: ground truth is expressed in it.
-        let known = known_poses
-            .and_then(|gt| interpolate(gt, reference_ns))
-            .map(|g| *origin.get_or_insert(g.inverse()) * g);
-        let hook = |stage| {
-            let i = match stage {
-                Stage::Deskew => 0,
-                Stage::Align => 1,
-                Stage::MapUpdate => 2,
-            };
-            marks[i] = Instant::now();
-        };
-        let estimate = match known {
-            Some(pose) => odometry.register_at_known_pose(&features, pose, hook),
-            None => odometry.register(&features, hook),
-        };
-        if let Some(pose) = known {
-            departures.push((estimate.pose.inverse() * pose).translation.vector);
-        }
-        let end = Instant::now();
-        let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
-        timings.total.push(ms(start, end));
-        timings.front_end.push(ms(start, after_front));
-        timings.deskew.push(ms(after_front, marks[0]));
-        timings.align.push(ms(marks[0], marks[1]));
-        timings.map.push(ms(marks[1], marks[2]));
-        timings.edges.push(features.edges.len() as f64);
-        timings.planes.push(features.planes.len() as f64);
-        timings.intensity.push(features.intensity.len() as f64);
-        if let Some(a) = &estimate.alignment {
-            timings.iterations.push(a.iterations as f64);
-            timings.degeneracy.push(a.degeneracy);
-        }
-        statuses[match estimate.status {
-            TrackingStatus::Initialising => 0,
-            TrackingStatus::Tracking => 1,
-            TrackingStatus::Degenerate => 2,
-            TrackingStatus::Lost => 3,
-        }] += 1;
-        if let Some(b) = bus.as_mut() {
-            let features_used = estimate
-                .alignment
-                .as_ref()
-                .map_or(0, |a| a.edges + a.planes);
-            let offered = (features.edges.len() + features.planes.len()).max(1);
-            b.publish(&estimate, features_used as f32 / offered as f32)?;
-            if timings.total.len() % 10 == 0 {
-                let mut status = Status::new(0, estimate.time_ns);
-                status.sweeps_processed = timings.total.len() as u64;
-                status.sweep_rate_hz = (1e3 / timings.total.last().copied().unwrap_or(1.0)) as f32;
-                b.publish_status(status)?;
-            }
-        }
-        let stamped = StampedPose {
-            time_ns: estimate.time_ns,
-            pose: estimate.pose,
-        };
-        if let Some(w) = trajectory.as_mut() {
-            w.write(&stamped)?;
-        }
-        if let Some(w) = kitti.as_mut() {
-            w.write(&stamped)?;
-        }
-        if let Some(map) = world.as_mut() {
-            for (p, eta) in odometry.map_points(&features, &estimate.pose) {
-                map.insert(&p, eta);
-            }
-        }
-        estimates.push(stamped);
-        Ok(())
+    let stop = Arc::new(AtomicBool::new(false));
+    crate::signals::stop_on_signals(&stop)?;
+    let summary = pipeline::run(Options {
+        input: Input::Capture {
+            path: args.capture.clone(),
+            ports: args.sensor.ports(),
+            pace: args.pace,
+        },
+        stream: args.sensor.stream_config()?,
+        odometry: config,
+        queue: 2,
+        base_from_sensor: Isometry3::identity(),
+        publish: (!args.no_publish).then(|| PublishOptions {
+            domain: args.domain.clone(),
+            predicted_rate_hz: args.predicted_rate,
+        }),
+        trajectory: args.trajectory.clone(),
+        trajectory_max_bytes: None,
+        kitti: args.kitti.clone(),
+        map: args.map.clone().map(|p| (p, args.map_voxel)),
+        keep_estimates: true,
+        known_poses,
+        stop,
+        on_ready: None,
+        on_alive: None,
     })?;
-    if let Some(w) = trajectory {
-        w.finish()?;
-    }
-    if let Some(w) = kitti {
-        w.finish()?;
-    }
-    if let (Some(map), Some(path)) = (world, args.map.as_ref()) {
-        write_map(path, &map.points())?;
-    }
-
+    let departures = &summary.departures;
+    let timings = &summary.timings;
+    let statuses = summary.statuses;
     if !departures.is_empty() {
         let n = departures.len() as f64;
         let mean = departures.iter().sum::<Vector3<f64>>() / n;
@@ -281,37 +146,44 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         }
     );
     for (name, v) in [
-        ("per sweep", &mut timings.total),
-        ("  calibration + features", &mut timings.front_end),
-        ("  deskew", &mut timings.deskew),
-        ("  alignment", &mut timings.align),
-        ("  map update", &mut timings.map),
+        ("per sweep", &timings.total),
+        ("  calibration + features", &timings.front_end),
+        ("  deskew", &timings.deskew),
+        ("  alignment", &timings.align),
+        ("  map update", &timings.map),
+        (
+            "latency (sweep received → pose published)",
+            &timings.latency,
+        ),
     ] {
         say!(
             "{name}: median {:.2} ms, p99 {:.2} ms",
-            percentile(v, 0.5),
-            percentile(v, 0.99)
+            v.quantile(0.5),
+            v.quantile(0.99)
         );
     }
     say!(
+        "wall time {:.2} s: {:.1} sweeps/s (pace {:?})",
+        summary.wall.as_secs_f64(),
+        n as f64 / summary.wall.as_secs_f64().max(1e-9),
+        args.pace
+    );
+    say!(
         "features per sweep (median): {} edges, {} planes, {} intensity points; {} solver steps",
-        percentile(&mut timings.edges, 0.5),
-        percentile(&mut timings.planes, 0.5),
-        percentile(&mut timings.intensity, 0.5),
-        percentile(&mut timings.iterations, 0.5)
+        timings.edges.quantile(0.5),
+        timings.planes.quantile(0.5),
+        timings.intensity.quantile(0.5),
+        timings.iterations.quantile(0.5)
     );
     say!(
         "degeneracy (smallest translational information per plane correspondence, 0–1/3): median {:.4}, min {:.4}",
-        percentile(&mut timings.degeneracy, 0.5),
-        percentile(&mut timings.degeneracy, 0.0)
+        timings.degeneracy.quantile(0.5),
+        timings.degeneracy.quantile(0.0)
     );
-    let (edges, planes, cells) = odometry.map_sizes();
+    let (edges, planes, cells) = summary.map_sizes;
     say!("local map: {edges} edge points, {planes} plane points, {cells} intensity cells");
-    if let Some(gt_path) = &args.groundtruth {
-        let text = std::fs::read_to_string(gt_path)
-            .with_context(|| format!("cannot read {}", gt_path.display()))?;
-        let groundtruth = parse_tum(&text).with_context(|| gt_path.display().to_string())?;
-        let pairs = associate(&estimates, &groundtruth);
+    if let Some(groundtruth) = &groundtruth {
+        let pairs = associate(&summary.estimates, groundtruth);
         anyhow::ensure!(
             pairs.len() >= 2,
             "fewer than 2 poses fall inside the ground truth's time span"
@@ -324,9 +196,17 @@ pub fn run(args: ReplayArgs) -> Result<()> {
             say!("{a}");
         }
     }
-    if let Some(damage) = report.damage {
+    for e in &summary.output_errors {
+        say!("output not written: {e}");
+    }
+    if let Some(damage) = summary.capture.and_then(|c| c.damage) {
         return Err(anyhow::Error::new(damage)
             .context("the capture is damaged; the sweeps before the damage were processed"));
     }
+    anyhow::ensure!(
+        summary.output_errors.is_empty(),
+        "{} output file(s) could not be written",
+        summary.output_errors.len()
+    );
     Ok(())
 }

@@ -1,0 +1,357 @@
+//! The daemon's configuration: one TOML file (`glintd run --config FILE`), every key optional
+//! with a default, unknown keys refused, and every value checked at start so a mistake is a
+//! clear error naming its key rather than a surprise on the robot. `systemd/glintd.toml` is the
+//! documented example.
+
+use std::net::{IpAddr, Ipv4Addr};
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use glint_core::config::OdometryConfig;
+use glint_driver::calibration::load_calibration;
+use glint_driver::udp::UdpConfig;
+use glint_driver::{Model, Ports, StreamConfig, SweepConfig};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use serde::Deserialize;
+
+/// The whole file.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DaemonConfig {
+    /// Where the packets come from and how to read them.
+    pub sensor: SensorConfig,
+    /// Threads and queues.
+    pub pipeline: PipelineConfig,
+    /// The algorithm's parameters (`glint_core::config`), by section.
+    pub odometry: OdometryConfig,
+    /// Where the sensor sits on the robot.
+    pub mounting: MountingConfig,
+    /// The iceoryx2 services.
+    pub ipc: IpcConfig,
+    /// Files written while running.
+    pub output: OutputConfig,
+}
+
+/// `[sensor]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensorConfig {
+    /// Local address to bind (0.0.0.0: every interface).
+    pub address: IpAddr,
+    /// UDP port of data packets.
+    pub data_port: u16,
+    /// UDP port of position packets.
+    pub position_port: u16,
+    /// Multicast group the sensor sends to, if any.
+    pub multicast_group: Option<Ipv4Addr>,
+    /// Interface address for the multicast join.
+    pub multicast_interface: Ipv4Addr,
+    /// Requested socket receive buffer, bytes.
+    pub receive_buffer: usize,
+    /// `vlp16`, `puck-hires` or `hdl32e`: overrides detection from the packets' timing.
+    pub model: Option<String>,
+    /// Laser calibration file (ROS `VLP16db.yaml` layout).
+    pub calibration: Option<PathBuf>,
+    /// Azimuth where sweeps are cut, degrees clockwise from the sensor's +x axis.
+    pub cut_azimuth_deg: f64,
+    /// No data packet for this long means the sensor is silent (flagged and logged), s.
+    pub silence_timeout_s: f64,
+}
+
+impl Default for SensorConfig {
+    fn default() -> Self {
+        let udp = UdpConfig::default();
+        Self {
+            address: udp.bind,
+            data_port: udp.ports.data,
+            position_port: udp.ports.position,
+            multicast_group: None,
+            multicast_interface: Ipv4Addr::UNSPECIFIED,
+            receive_buffer: udp.receive_buffer,
+            model: None,
+            calibration: None,
+            cut_azimuth_deg: 0.0,
+            silence_timeout_s: 0.5,
+        }
+    }
+}
+
+/// `[pipeline]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PipelineConfig {
+    /// Use intensity (false: the geometry-only ablation).
+    pub intensity: bool,
+    /// Sweeps that may wait between stages. Live, a sweep that finds its queue full is dropped
+    /// whole (counted): a late pose is worth less than the next one.
+    pub queue_sweeps: usize,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self {
+            intensity: true,
+            queue_sweeps: 2,
+        }
+    }
+}
+
+/// `[mounting]`: the sensor's pose in `base_link` (x forward, y left, z up; REP-103).
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MountingConfig {
+    /// Sensor origin in `base_link`, m.
+    pub translation: [f64; 3],
+    /// Sensor orientation in `base_link` as roll, pitch, yaw (rad; applied yaw, then pitch,
+    /// then roll about the moving axes — the ROS `rpy` convention).
+    pub rotation_rpy: [f64; 3],
+}
+
+impl MountingConfig {
+    /// `base_link` ← sensor.
+    pub fn base_from_sensor(&self) -> Isometry3<f64> {
+        let [x, y, z] = self.translation;
+        let [r, p, yaw] = self.rotation_rpy;
+        Isometry3::from_parts(
+            Translation3::new(x, y, z),
+            UnitQuaternion::from_euler_angles(r, p, yaw),
+        )
+    }
+}
+
+/// `[ipc]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct IpcConfig {
+    /// Publish over iceoryx2 at all.
+    pub publish: bool,
+    /// Service-name prefix: services are `glint/<domain>/odom`, `…/map`, `…/predicted`,
+    /// `…/status`.
+    pub domain: String,
+    /// Rate of the predicted pose stream, Hz (0 turns it off).
+    pub predicted_rate_hz: f64,
+}
+
+impl Default for IpcConfig {
+    fn default() -> Self {
+        Self {
+            publish: true,
+            domain: "default".into(),
+            predicted_rate_hz: 50.0,
+        }
+    }
+}
+
+/// `[output]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OutputConfig {
+    /// Trajectory of the sensor (TUM), streamed as it grows.
+    pub trajectory: Option<PathBuf>,
+    /// When the trajectory file reaches this size it is renamed to `<name>.1` (replacing the
+    /// previous one) and a new one is started, bytes.
+    pub trajectory_max_bytes: u64,
+    /// The run's map (PCD, or PLY by extension), written at shutdown.
+    pub map: Option<PathBuf>,
+    /// Voxel size of that map, m.
+    pub map_voxel: f32,
+}
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        Self {
+            trajectory: None,
+            trajectory_max_bytes: 64 << 20,
+            map: None,
+            map_voxel: 0.1,
+        }
+    }
+}
+
+impl DaemonConfig {
+    /// Reads and validates `path`.
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read the configuration {}", path.display()))?;
+        Self::parse(&text).with_context(|| format!("in {}", path.display()))
+    }
+
+    /// Parses and validates a configuration text.
+    pub fn parse(text: &str) -> Result<Self> {
+        // toml's message names the key and shows the line (unknown field, wrong type).
+        let mut config: Self = toml::from_str(text).map_err(|e| anyhow::anyhow!("{e}"))?;
+        if !config.pipeline.intensity {
+            config.odometry.features.intensity_weight = 0.0;
+            config.odometry.solver.use_intensity = false;
+        }
+        config.validate()?;
+        Ok(config)
+    }
+
+    fn validate(&self) -> Result<()> {
+        self.odometry
+            .validate()
+            .map_err(|e| anyhow::anyhow!("odometry.{e}"))?;
+        let s = &self.sensor;
+        if s.data_port == s.position_port && s.data_port != 0 {
+            bail!(
+                "sensor.data_port and sensor.position_port are both {}",
+                s.data_port
+            );
+        }
+        if !(s.cut_azimuth_deg.is_finite() && (0.0..360.0).contains(&s.cut_azimuth_deg)) {
+            bail!(
+                "sensor.cut_azimuth_deg = {}: must be in [0, 360)",
+                s.cut_azimuth_deg
+            );
+        }
+        if !(s.silence_timeout_s.is_finite() && s.silence_timeout_s >= 0.05) {
+            bail!(
+                "sensor.silence_timeout_s = {}: must be at least 0.05",
+                s.silence_timeout_s
+            );
+        }
+        if let Some(m) = &s.model {
+            m.parse::<Model>()
+                .map_err(|e| anyhow::anyhow!("sensor.model = {m:?}: {e}"))?;
+        }
+        if let Some(g) = s.multicast_group {
+            if !g.is_multicast() {
+                bail!("sensor.multicast_group = {g}: not a multicast address");
+            }
+        }
+        if s.receive_buffer < 64 << 10 {
+            bail!(
+                "sensor.receive_buffer = {}: must be at least 65536 bytes",
+                s.receive_buffer
+            );
+        }
+        if !(1..=64).contains(&self.pipeline.queue_sweeps) {
+            bail!(
+                "pipeline.queue_sweeps = {}: must be in 1..=64",
+                self.pipeline.queue_sweeps
+            );
+        }
+        let m = &self.mounting;
+        if m.translation
+            .iter()
+            .chain(&m.rotation_rpy)
+            .any(|v| !v.is_finite())
+        {
+            bail!("mounting: translation and rotation_rpy must be finite numbers");
+        }
+        glint_ipc::Domain::new(&self.ipc.domain)
+            .map_err(|e| anyhow::anyhow!("ipc.domain = {:?}: {e}", self.ipc.domain))?;
+        let rate = self.ipc.predicted_rate_hz;
+        if !(rate.is_finite() && (0.0..=1000.0).contains(&rate)) {
+            bail!("ipc.predicted_rate_hz = {rate}: must be in [0, 1000]");
+        }
+        if self.output.trajectory_max_bytes < 4096 {
+            bail!(
+                "output.trajectory_max_bytes = {}: must be at least 4096",
+                self.output.trajectory_max_bytes
+            );
+        }
+        if !(self.output.map_voxel.is_finite() && self.output.map_voxel > 0.0) {
+            bail!("output.map_voxel = {}: must be > 0", self.output.map_voxel);
+        }
+        Ok(())
+    }
+
+    /// The driver's stream configuration (loads the calibration file, if any).
+    pub fn stream_config(&self) -> Result<StreamConfig> {
+        let s = &self.sensor;
+        let calibration = match &s.calibration {
+            Some(path) => Some(
+                load_calibration(path)
+                    .with_context(|| format!("sensor.calibration = {}", path.display()))?,
+            ),
+            None => None,
+        };
+        Ok(StreamConfig {
+            model: s.model.as_deref().map(str::parse).transpose()?,
+            calibration,
+            sweep: SweepConfig {
+                cut_azimuth: s.cut_azimuth_deg.to_radians(),
+                ..SweepConfig::default()
+            },
+        })
+    }
+
+    /// The sockets to bind.
+    pub fn udp_config(&self) -> UdpConfig {
+        let s = &self.sensor;
+        UdpConfig {
+            bind: s.address,
+            ports: Ports {
+                data: s.data_port,
+                position: s.position_port,
+            },
+            multicast_group: s.multicast_group,
+            multicast_interface: s.multicast_interface,
+            receive_buffer: s.receive_buffer,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    #[test]
+    fn an_empty_file_is_the_defaults() {
+        let c = DaemonConfig::parse("").unwrap();
+        assert_eq!(c.sensor.data_port, 2368);
+        assert_eq!(c.ipc.domain, "default");
+        assert_eq!(c.odometry, OdometryConfig::default());
+        assert_eq!(c.mounting.base_from_sensor(), Isometry3::identity());
+    }
+
+    #[test]
+    fn the_example_file_parses() {
+        let text = include_str!("../../systemd/glintd.toml");
+        let c = DaemonConfig::parse(text).unwrap();
+        assert_eq!(c.ipc.predicted_rate_hz, 50.0);
+    }
+
+    #[test]
+    fn an_unknown_key_is_named() {
+        let e = DaemonConfig::parse("[sensor]\ndata_prot = 2368\n").unwrap_err();
+        assert!(format!("{e:#}").contains("data_prot"), "{e:#}");
+        let e = DaemonConfig::parse("[odometry.solver]\nhuber = 0.1\n").unwrap_err();
+        assert!(format!("{e:#}").contains("huber"), "{e:#}");
+    }
+
+    #[test]
+    fn an_impossible_value_is_named() {
+        for (text, key) in [
+            (
+                "[sensor]\ncut_azimuth_deg = 400.0\n",
+                "sensor.cut_azimuth_deg",
+            ),
+            ("[sensor]\nmodel = \"hdl64\"\n", "sensor.model"),
+            ("[ipc]\ndomain = \"a/b\"\n", "ipc.domain"),
+            ("[ipc]\npredicted_rate_hz = -1.0\n", "ipc.predicted_rate_hz"),
+            ("[pipeline]\nqueue_sweeps = 0\n", "pipeline.queue_sweeps"),
+            (
+                "[odometry.local_map]\nradius = 0.1\n",
+                "odometry.local_map.radius",
+            ),
+            ("[sensor]\ndata_port = 70000\n", "data_port"),
+        ] {
+            let e = format!("{:#}", DaemonConfig::parse(text).unwrap_err());
+            assert!(e.contains(key), "{text}: {e}");
+        }
+    }
+
+    #[test]
+    fn the_mounting_is_applied_in_ros_order() {
+        let m = MountingConfig {
+            translation: [0.5, 0.0, 1.2],
+            rotation_rpy: [0.0, 0.0, std::f64::consts::FRAC_PI_2],
+        };
+        let p = m.base_from_sensor() * nalgebra::Point3::new(1.0, 0.0, 0.0);
+        assert!((p.coords - Vector3::new(0.5, 1.0, 1.2)).norm() < 1e-12);
+    }
+}

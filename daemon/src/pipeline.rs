@@ -1,0 +1,1105 @@
+//! The real-time pipeline every mode runs: a receive thread (UDP sockets or a paced capture)
+//! closes sweeps → a front-end thread calibrates them and selects features → an odometry thread
+//! registers them → this (the calling) thread publishes poses on iceoryx2, writes the outputs and
+//! reports health. Stages talk over bounded crossbeam channels; nothing queues without bound.
+//!
+//! Live, the receive thread never waits: a sweep that finds the front end's queue full is
+//! dropped whole and counted, and the stages behind it wait on each other. In a replay the reader
+//! waits instead, so every sweep is processed in capture order and the outputs depend on the data
+//! alone: the same capture and configuration give byte-identical trajectory files at any pace.
+//!
+//! The publishing thread owns the iceoryx2 ports (they are not `Send`), so it also runs the
+//! predicted stream's and the status report's timers. Each stage beats a heartbeat while it works
+//! or idles; the systemd watchdog is fed only while every heartbeat is fresh, so a stuck stage
+//! gets the daemon restarted.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, Context, Result};
+use crossbeam_channel::{bounded, never, tick, Receiver, RecvTimeoutError, Sender, TrySendError};
+use glint_core::config::OdometryConfig;
+use glint_core::features::SweepFeatures;
+use glint_core::odometry::{FrontEnd, Odometry, OdometryEstimate, Stage, TrackingStatus};
+use glint_core::scan::{Scan, ScanPoint};
+use glint_core::se3::exp;
+use glint_core::trajectory::{interpolate, StampedPose};
+use glint_core::world_map::WorldMap;
+use glint_driver::udp::{host_now_ns, Datagram, UdpConfig, UdpCounters, UdpSource};
+use glint_driver::{PacketKind, Ports, SensorStream, StreamConfig, Sweep, SweepRecycler};
+use glint_ipc::{Status, StatusFlags};
+use nalgebra::{Isometry3, Vector3, Vector6};
+
+use crate::capture::{replay_stream, CaptureReport};
+use crate::outputs::{write_map, TrajectoryWriter};
+use crate::publish::{PoseBus, PoseSample};
+
+/// How fast a capture is replayed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pace {
+    /// As fast as the stages go.
+    Max,
+    /// This many times real time (1 = the sensor's own pace).
+    Factor(f64),
+}
+
+impl std::str::FromStr for Pace {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "max" => Ok(Self::Max),
+            "realtime" => Ok(Self::Factor(1.0)),
+            _ => match s.parse::<f64>() {
+                Ok(f) if f.is_finite() && f > 0.0 => Ok(Self::Factor(f)),
+                _ => Err(format!(
+                    "{s:?}: expected max, realtime or a positive speed factor such as 2 or 0.5"
+                )),
+            },
+        }
+    }
+}
+
+/// Where the packets come from.
+#[derive(Debug, Clone)]
+pub enum Input {
+    /// A capture file, read at `pace`.
+    Capture {
+        /// The pcap or pcapng file.
+        path: PathBuf,
+        /// The ports to read.
+        ports: Ports,
+        /// Replay speed.
+        pace: Pace,
+    },
+    /// The sensor's UDP traffic.
+    Live {
+        /// Sockets.
+        udp: UdpConfig,
+        /// No data packet for this long: the sensor is silent.
+        silence: Duration,
+    },
+}
+
+/// What to publish over iceoryx2.
+#[derive(Debug, Clone)]
+pub struct PublishOptions {
+    /// Service-name prefix.
+    pub domain: String,
+    /// Predicted stream rate, Hz (0: off).
+    pub predicted_rate_hz: f64,
+}
+
+/// Everything a run needs.
+pub struct Options {
+    /// The packets.
+    pub input: Input,
+    /// How to decode them.
+    pub stream: StreamConfig,
+    /// The algorithm.
+    pub odometry: OdometryConfig,
+    /// Sweeps that may wait between two stages.
+    pub queue: usize,
+    /// `base_link` ← sensor (the published poses are the base's).
+    pub base_from_sensor: Isometry3<f64>,
+    /// iceoryx2 publishing, if any.
+    pub publish: Option<PublishOptions>,
+    /// The sensor's trajectory (TUM), streamed.
+    pub trajectory: Option<PathBuf>,
+    /// Rotate the trajectory file at this size (live runs).
+    pub trajectory_max_bytes: Option<u64>,
+    /// The same in KITTI's format.
+    pub kitti: Option<PathBuf>,
+    /// The whole run's map and its voxel size.
+    pub map: Option<(PathBuf, f32)>,
+    /// Keep every pose and every sweep's timing for the report (replays; a live run keeps a
+    /// bounded window).
+    pub keep_estimates: bool,
+    /// Diagnostic: start each sweep's alignment from these poses (ground truth in the map
+    /// frame's origin) and grow the map from them.
+    pub known_poses: Option<Vec<StampedPose>>,
+    /// Set (by a signal handler) to end the run: the reader stops, the stages drain, the
+    /// outputs are written.
+    pub stop: Arc<AtomicBool>,
+    /// Called once the sockets are bound and the services exist (systemd's READY).
+    pub on_ready: Option<Box<dyn FnOnce()>>,
+    /// Called about once a second while every stage is alive (systemd's watchdog).
+    pub on_alive: Option<Box<dyn FnMut()>>,
+}
+
+/// Per-sweep samples, bounded: past `CAPACITY` the oldest are overwritten, so a run of months
+/// keeps the last few hours.
+#[derive(Debug, Default, Clone)]
+pub struct Samples {
+    values: Vec<f64>,
+    next: usize,
+}
+
+impl Samples {
+    const CAPACITY: usize = 1 << 17;
+
+    /// Adds one sample.
+    pub fn push(&mut self, v: f64) {
+        if self.values.len() < Self::CAPACITY {
+            self.values.push(v);
+        } else {
+            self.values[self.next] = v;
+            self.next = (self.next + 1) % Self::CAPACITY;
+        }
+    }
+
+    /// Samples held.
+    pub fn len(&self) -> usize {
+        self.values.len()
+    }
+
+    /// The `q` quantile (0..=1) of the samples held, NaN when there are none.
+    pub fn quantile(&self, q: f64) -> f64 {
+        quantile(&mut self.values.clone(), q)
+    }
+}
+
+/// The `q` quantile of `v` (nearest rank), NaN when empty.
+pub fn quantile(v: &mut [f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
+}
+
+/// Per-stage timing (ms) and per-sweep feature figures.
+#[derive(Debug, Default, Clone)]
+pub struct Timings {
+    /// Front end + odometry, per sweep.
+    pub total: Samples,
+    /// Calibration and features.
+    pub front_end: Samples,
+    /// Prediction and deskew.
+    pub deskew: Samples,
+    /// Scan-to-map alignment.
+    pub align: Samples,
+    /// Map update.
+    pub map: Samples,
+    /// Sweep closed (its last packet received) → pose published.
+    pub latency: Samples,
+    /// Edge features.
+    pub edges: Samples,
+    /// Plane features.
+    pub planes: Samples,
+    /// Intensity points.
+    pub intensity: Samples,
+    /// Solver steps.
+    pub iterations: Samples,
+    /// Degeneracy measure.
+    pub degeneracy: Samples,
+}
+
+/// What a run did.
+#[derive(Debug, Default)]
+pub struct Summary {
+    /// Every pose (when `keep_estimates`).
+    pub estimates: Vec<StampedPose>,
+    /// Sweeps by status: initialising, tracking, degenerate, lost.
+    pub statuses: [u64; 4],
+    /// Timing and features.
+    pub timings: Timings,
+    /// Local map sizes at the end (edge points, plane points, intensity cells).
+    pub map_sizes: (usize, usize, usize),
+    /// Whole sweeps dropped because the front end was behind (live only).
+    pub sweeps_dropped: u64,
+    /// With known poses: how far alignment moved each off its known pose (sensor frame).
+    pub departures: Vec<Vector3<f64>>,
+    /// The capture's report (replays).
+    pub capture: Option<CaptureReport>,
+    /// Wall time of the whole run.
+    pub wall: Duration,
+    /// Output files that could not be written (the run went on publishing).
+    pub output_errors: Vec<String>,
+}
+
+/// Counters the receive thread shares with the reporter.
+#[derive(Debug, Default)]
+struct ReceiveCounters {
+    packets: AtomicU64,
+    packets_missing: AtomicU64,
+    malformed: AtomicU64,
+    sweeps_dropped: AtomicU64,
+    silent: AtomicBool,
+}
+
+impl ReceiveCounters {
+    fn update(&self, stream: &SensorStream, udp: Option<&UdpCounters>) {
+        let s = stream.stats();
+        let (udp_dropped, wrong_length) = udp.map_or((0, 0), |u| {
+            (
+                u.dropped.load(Ordering::Relaxed),
+                u.wrong_length.load(Ordering::Relaxed),
+            )
+        });
+        self.packets
+            .store(s.data_packets + s.position_packets, Ordering::Relaxed);
+        self.packets_missing
+            .store(s.packets_missing + udp_dropped, Ordering::Relaxed);
+        self.malformed
+            .store(s.truncated + s.malformed + wrong_length, Ordering::Relaxed);
+    }
+}
+
+/// Liveness of the stages: the time (ms since the run started) each last showed progress.
+struct Heartbeats {
+    start: Instant,
+    beats: [AtomicU64; 3],
+}
+
+impl Heartbeats {
+    const RECEIVE: usize = 0;
+    const FRONT_END: usize = 1;
+    const ODOMETRY: usize = 2;
+    /// A stage silent for longer than this is stuck.
+    const STALE: Duration = Duration::from_secs(3);
+
+    fn beat(&self, stage: usize) {
+        self.beats[stage].store(self.start.elapsed().as_millis() as u64, Ordering::Relaxed);
+    }
+
+    fn all_alive(&self) -> bool {
+        let now = self.start.elapsed().as_millis() as u64;
+        self.beats
+            .iter()
+            .all(|b| now.saturating_sub(b.load(Ordering::Relaxed)) < Self::STALE.as_millis() as u64)
+    }
+}
+
+/// How long an idle stage waits before beating its heartbeat again.
+const IDLE_BEAT: Duration = Duration::from_millis(200);
+
+/// A closed sweep on its way to the front end.
+struct Arrival {
+    sweep: Sweep,
+    recycler: Option<SweepRecycler>,
+    /// When its last packet was received.
+    received: Instant,
+}
+
+/// A sweep's features on their way to the odometry.
+struct Featured {
+    features: SweepFeatures,
+    received: Instant,
+    front_ms: f64,
+}
+
+/// A sweep's estimate on its way to the publisher.
+struct Estimated {
+    estimate: OdometryEstimate,
+    quality: f32,
+    received: Instant,
+    /// front end, deskew, align, map update (ms).
+    stage_ms: [f64; 4],
+    counts: [usize; 3],
+    departure: Option<Vector3<f64>>,
+}
+
+/// A gap between sweeps longer than this (sensor silence, lost packets) voids the constant
+/// velocity: tracking restarts from the last pose, held still.
+const RESUME_GAP_NS: u64 = 500_000_000;
+/// After such a gap, a sweep whose features match worse than this is reported lost rather than
+/// trusted: the robot may have moved anywhere while the sensor was silent.
+const RESUME_MIN_QUALITY: f32 = 0.5;
+
+/// Runs the pipeline until the input ends or `options.stop` is set.
+pub fn run(mut options: Options) -> Result<Summary> {
+    let started = Instant::now();
+    let queue = options.queue.max(1);
+    let heartbeats = Arc::new(Heartbeats {
+        start: started,
+        beats: Default::default(),
+    });
+    let counters = Arc::new(ReceiveCounters::default());
+
+    // The services first (a crashed daemon's leftovers are cleaned here), then the sockets:
+    // READY means both exist.
+    let mut bus = match &options.publish {
+        Some(p) => Some(PoseBus::create(&p.domain)?),
+        None => None,
+    };
+
+    let (sweep_tx, sweep_rx) = bounded::<Arrival>(queue);
+    let (feature_tx, feature_rx) = bounded::<Featured>(queue);
+    let (estimate_tx, estimate_rx) = bounded::<Estimated>(queue.max(4));
+
+    let receiver = {
+        let heartbeats = heartbeats.clone();
+        let counters = counters.clone();
+        let stop = options.stop.clone();
+        let stream = options.stream.clone();
+        match options.input.clone() {
+            Input::Capture { path, ports, pace } => spawn("glint-read", move || {
+                read_capture(
+                    &path,
+                    ports,
+                    stream,
+                    pace,
+                    &stop,
+                    &sweep_tx,
+                    &heartbeats,
+                    &counters,
+                )
+                .map(Some)
+            })?,
+            Input::Live { udp, silence } => {
+                let (datagram_tx, datagram_rx) = bounded::<Datagram>(4096);
+                let source = UdpSource::start(&udp, datagram_tx)
+                    .with_context(|| format!("cannot listen for the sensor on {}", udp.bind))?;
+                let ports = source.local_ports();
+                tracing::info!(
+                    data_port = ports.data,
+                    position_port = ports.position,
+                    receive_buffer = source.granted_buffer(),
+                    "listening for the sensor"
+                );
+                spawn("glint-receive", move || {
+                    receive_live(
+                        source,
+                        &datagram_rx,
+                        stream,
+                        silence,
+                        &stop,
+                        &sweep_tx,
+                        &heartbeats,
+                        &counters,
+                    )
+                    .map(|()| None)
+                })?
+            }
+        }
+    };
+    let front_end = {
+        let heartbeats = heartbeats.clone();
+        let config = options.odometry.clone();
+        spawn("glint-features", move || {
+            run_front_end(&config, &sweep_rx, &feature_tx, &heartbeats);
+            Ok(())
+        })?
+    };
+    let odometry = {
+        let heartbeats = heartbeats.clone();
+        let config = options.odometry.clone();
+        let known = options.known_poses.take();
+        let map_voxel = options.map.as_ref().map(|(_, v)| *v);
+        spawn("glint-odometry", move || {
+            Ok(run_odometry(
+                &config,
+                known,
+                map_voxel,
+                &feature_rx,
+                &estimate_tx,
+                &heartbeats,
+            ))
+        })?
+    };
+    if let Some(ready) = options.on_ready.take() {
+        ready();
+    }
+
+    let mut sink = Sink::new(&options)?;
+    let predicted_rate = options
+        .publish
+        .as_ref()
+        .map_or(0.0, |p| p.predicted_rate_hz);
+    let predicted_tick = if predicted_rate > 0.0 && bus.is_some() {
+        tick(Duration::from_secs_f64(1.0 / predicted_rate))
+    } else {
+        never()
+    };
+    let report_tick = tick(Duration::from_secs(1));
+    let mut on_alive = options.on_alive.take();
+    loop {
+        crossbeam_channel::select! {
+            recv(estimate_rx) -> message => match message {
+                Ok(e) => sink.take(e, bus.as_mut(), &counters),
+                Err(_) => break,
+            },
+            recv(predicted_tick) -> _ => {
+                if let Some(b) = bus.as_mut() {
+                    sink.predict(b);
+                }
+            },
+            recv(report_tick) -> _ => {
+                sink.report(bus.as_mut(), &counters);
+                if heartbeats.all_alive() {
+                    if let Some(alive) = on_alive.as_mut() {
+                        alive();
+                    }
+                }
+            },
+        }
+    }
+
+    let capture = join(receiver, "receive")?;
+    join(front_end, "front end")?;
+    let (world, map_sizes) = join(odometry, "odometry")?;
+    let mut summary = sink.finish(world, &options)?;
+    summary.map_sizes = map_sizes;
+    summary.capture = capture;
+    summary.sweeps_dropped = counters.sweeps_dropped.load(Ordering::Relaxed);
+    summary.wall = started.elapsed();
+    Ok(summary)
+}
+
+fn spawn<T: Send + 'static>(
+    name: &str,
+    f: impl FnOnce() -> Result<T> + Send + 'static,
+) -> Result<JoinHandle<Result<T>>> {
+    std::thread::Builder::new()
+        .name(name.into())
+        .spawn(f)
+        .with_context(|| format!("cannot start thread {name}"))
+}
+
+fn join<T>(handle: JoinHandle<Result<T>>, stage: &str) -> Result<T> {
+    handle
+        .join()
+        .map_err(|_| anyhow!("the {stage} stage panicked"))?
+}
+
+/// The receive stage of a replay: reads the capture at `pace`, waiting for the front end
+/// rather than dropping.
+#[allow(clippy::too_many_arguments)]
+fn read_capture(
+    path: &std::path::Path,
+    ports: Ports,
+    stream: StreamConfig,
+    pace: Pace,
+    stop: &AtomicBool,
+    out: &Sender<Arrival>,
+    heartbeats: &Heartbeats,
+    counters: &ReceiveCounters,
+) -> Result<CaptureReport> {
+    let mut clock: Option<(u64, Instant)> = None;
+    let downstream_gone = std::cell::Cell::new(false);
+    replay_stream(
+        path,
+        ports,
+        stream,
+        |record_ns, stream| {
+            heartbeats.beat(Heartbeats::RECEIVE);
+            if stop.load(Ordering::Relaxed) || downstream_gone.get() {
+                return false;
+            }
+            if let Pace::Factor(f) = pace {
+                let (t0, w0) = *clock.get_or_insert((record_ns, Instant::now()));
+                let due =
+                    w0 + Duration::from_secs_f64(record_ns.saturating_sub(t0) as f64 * 1e-9 / f);
+                // Sleep in short steps so a stop request is seen promptly.
+                while let Some(wait) = due.checked_duration_since(Instant::now()) {
+                    if stop.load(Ordering::Relaxed) {
+                        return false;
+                    }
+                    heartbeats.beat(Heartbeats::RECEIVE);
+                    std::thread::sleep(wait.min(IDLE_BEAT));
+                }
+            }
+            counters.update(stream, None);
+            true
+        },
+        |sweep, stream| {
+            let arrival = Arrival {
+                sweep,
+                recycler: stream.recycler(),
+                received: Instant::now(),
+            };
+            // Blocking: a replay processes every sweep. Beat while waiting, so a slow stage
+            // behind is not taken for a stuck reader.
+            let mut pending = arrival;
+            loop {
+                match out.send_timeout(pending, IDLE_BEAT) {
+                    Ok(()) => break,
+                    Err(crossbeam_channel::SendTimeoutError::Timeout(a)) => {
+                        heartbeats.beat(Heartbeats::RECEIVE);
+                        pending = a;
+                    }
+                    Err(crossbeam_channel::SendTimeoutError::Disconnected(_)) => {
+                        downstream_gone.set(true);
+                        break;
+                    }
+                }
+            }
+            Ok(())
+        },
+    )
+}
+
+/// The receive stage live: datagrams from the socket threads into the stream; closed sweeps
+/// offered to the front end without waiting.
+#[allow(clippy::too_many_arguments)]
+fn receive_live(
+    source: UdpSource,
+    datagrams: &Receiver<Datagram>,
+    stream: StreamConfig,
+    silence: Duration,
+    stop: &AtomicBool,
+    out: &Sender<Arrival>,
+    heartbeats: &Heartbeats,
+    counters: &ReceiveCounters,
+) -> Result<()> {
+    let udp = source.counters();
+    let mut stream = SensorStream::new(stream);
+    let mut last_data = Instant::now();
+    let mut silent_since: Option<Instant> = None;
+    let mut logged_errors = 0u64;
+    let mut last_drop_log: Option<Instant> = None;
+    while !stop.load(Ordering::Relaxed) {
+        heartbeats.beat(Heartbeats::RECEIVE);
+        let datagram = match datagrams.recv_timeout(Duration::from_millis(50)) {
+            Ok(d) => Some(d),
+            Err(RecvTimeoutError::Timeout) => None,
+            Err(RecvTimeoutError::Disconnected) => break,
+        };
+        if let Some(d) = &datagram {
+            let result = match d.kind {
+                PacketKind::Data => {
+                    last_data = Instant::now();
+                    stream.push_data(d.payload(), d.receive_ns)
+                }
+                PacketKind::Position => stream.push_position(d.payload()),
+            };
+            if let Err(e) = result {
+                // Garbage on the port or a damaged packet: counted by the stream, logged
+                // sparingly (the first few, then every thousandth).
+                logged_errors += 1;
+                if logged_errors <= 5 || logged_errors % 1000 == 0 {
+                    tracing::warn!(count = logged_errors, "packet refused: {e}");
+                }
+            }
+            counters.update(&stream, Some(&udp));
+        }
+        match (silent_since, last_data.elapsed() > silence) {
+            (None, true) => {
+                silent_since = Some(last_data);
+                counters.silent.store(true, Ordering::Relaxed);
+                tracing::warn!(
+                    "no data from the sensor for {:.1} s (cable, power or network?)",
+                    silence.as_secs_f64()
+                );
+            }
+            (Some(since), false) => {
+                silent_since = None;
+                counters.silent.store(false, Ordering::Relaxed);
+                tracing::info!(
+                    "sensor data resumed after {:.1} s of silence",
+                    since.elapsed().as_secs_f64()
+                );
+            }
+            _ => {}
+        }
+        while let Some(sweep) = stream.take_sweep() {
+            let behind = Duration::from_nanos(host_now_ns().saturating_sub(sweep.last_receive_ns));
+            let arrival = Arrival {
+                sweep,
+                recycler: stream.recycler(),
+                received: Instant::now()
+                    .checked_sub(behind)
+                    .unwrap_or_else(Instant::now),
+            };
+            match out.try_send(arrival) {
+                Ok(()) => {}
+                Err(TrySendError::Full(a)) => {
+                    let dropped = counters.sweeps_dropped.fetch_add(1, Ordering::Relaxed) + 1;
+                    if last_drop_log.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
+                        tracing::warn!(dropped, "the pipeline is behind: sweep dropped");
+                        last_drop_log = Some(Instant::now());
+                    }
+                    if let Some(r) = &a.recycler {
+                        r.recycle(a.sweep);
+                    }
+                }
+                Err(TrySendError::Disconnected(_)) => return Ok(()),
+            }
+        }
+    }
+    source.stop();
+    Ok(())
+}
+
+/// Converts a driver sweep to the odometry's input.
+pub fn scan_points(sweep: &Sweep, out: &mut Vec<ScanPoint>) {
+    out.clear();
+    out.extend(sweep.points.iter().map(|p| ScanPoint {
+        position: [p.x, p.y, p.z],
+        time_ns: p.time_ns,
+        reflectivity: p.reflectivity,
+        ring: p.ring,
+    }));
+}
+
+fn run_front_end(
+    config: &OdometryConfig,
+    input: &Receiver<Arrival>,
+    output: &Sender<Featured>,
+    heartbeats: &Heartbeats,
+) {
+    let mut front_end = FrontEnd::new(config);
+    let mut points = Vec::new();
+    loop {
+        heartbeats.beat(Heartbeats::FRONT_END);
+        let arrival = match input.recv_timeout(IDLE_BEAT) {
+            Ok(a) => a,
+            Err(RecvTimeoutError::Timeout) => continue,
+            Err(RecvTimeoutError::Disconnected) => return,
+        };
+        let Some(reference_ns) = arrival.sweep.points.last().map(|p| p.time_ns) else {
+            continue;
+        };
+        let start = Instant::now();
+        scan_points(&arrival.sweep, &mut points);
+        // 16 rings for the VLP-16 family, 32 for the HDL-32E: whatever the sweep holds.
+        let rings = arrival
+            .sweep
+            .points
+            .iter()
+            .map(|p| usize::from(p.ring) + 1)
+            .max()
+            .unwrap_or(16);
+        if let Some(r) = &arrival.recycler {
+            r.recycle(arrival.sweep);
+        }
+        let mut features = SweepFeatures::default();
+        front_end.process(
+            &Scan {
+                points: &points,
+                rings,
+                reference_ns,
+            },
+            &mut features,
+        );
+        let message = Featured {
+            features,
+            received: arrival.received,
+            front_ms: start.elapsed().as_secs_f64() * 1e3,
+        };
+        if send_beating(output, message, heartbeats, Heartbeats::FRONT_END).is_err() {
+            return;
+        }
+    }
+}
+
+/// Sends, beating `stage`'s heartbeat while the next stage is busy.
+fn send_beating<T>(
+    out: &Sender<T>,
+    mut message: T,
+    heartbeats: &Heartbeats,
+    stage: usize,
+) -> Result<(), ()> {
+    loop {
+        match out.send_timeout(message, IDLE_BEAT) {
+            Ok(()) => return Ok(()),
+            Err(crossbeam_channel::SendTimeoutError::Timeout(m)) => {
+                heartbeats.beat(stage);
+                message = m;
+            }
+            Err(crossbeam_channel::SendTimeoutError::Disconnected(_)) => return Err(()),
+        }
+    }
+}
+
+fn run_odometry(
+    config: &OdometryConfig,
+    known: Option<Vec<StampedPose>>,
+    map_voxel: Option<f32>,
+    input: &Receiver<Featured>,
+    output: &Sender<Estimated>,
+    heartbeats: &Heartbeats,
+) -> (Option<WorldMap>, (usize, usize, usize)) {
+    let mut odometry = Odometry::new(config);
+    let mut world = map_voxel.map(WorldMap::new);
+    let mut origin: Option<Isometry3<f64>> = None;
+    loop {
+        heartbeats.beat(Heartbeats::ODOMETRY);
+        let featured = match input.recv_timeout(IDLE_BEAT) {
+            Ok(f) => f,
+            Err(RecvTimeoutError::Timeout) => continue,
+            Err(RecvTimeoutError::Disconnected) => break,
+        };
+        let features = &featured.features;
+        let reference_ns = features.reference_ns;
+        let start = Instant::now();
+        let mut marks = [start; 3];
+        let hook = |stage| {
+            let i = match stage {
+                Stage::Deskew => 0,
+                Stage::Align => 1,
+                Stage::MapUpdate => 2,
+            };
+            marks[i] = Instant::now();
+        };
+        // The map frame is the first sweep's sensor frame: known poses are expressed in it.
+        let known_pose = known
+            .as_deref()
+            .and_then(|gt| interpolate(gt, reference_ns))
+            .map(|g| *origin.get_or_insert(g.inverse()) * g);
+        let after_gap = odometry
+            .last_pose()
+            .filter(|(t, _)| reference_ns > t + RESUME_GAP_NS);
+        let mut estimate = match (known_pose, after_gap) {
+            (Some(pose), _) => odometry.register_at_known_pose(features, pose, hook),
+            (None, Some((_, last))) => odometry.register_from(features, last, hook),
+            (None, None) => odometry.register(features, hook),
+        };
+        let departure = known_pose.map(|pose| (estimate.pose.inverse() * pose).translation.vector);
+        let quality = match &estimate.alignment {
+            Some(a) => {
+                let offered = (features.edges.len() + features.planes.len()).max(1);
+                ((a.edges + a.planes) as f32 / offered as f32).clamp(0.0, 1.0)
+            }
+            None => 0.0,
+        };
+        if after_gap.is_some() && quality < RESUME_MIN_QUALITY {
+            tracing::warn!(
+                quality,
+                "after a gap in the data the scan does not match the map: reporting lost"
+            );
+            estimate.status = TrackingStatus::Lost;
+        }
+        if let Some(map) = world.as_mut() {
+            if estimate.status != TrackingStatus::Lost {
+                for (p, eta) in odometry.map_points(features, &estimate.pose) {
+                    map.insert(&p, eta);
+                }
+            }
+        }
+        let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
+        let message = Estimated {
+            quality,
+            received: featured.received,
+            stage_ms: [
+                featured.front_ms,
+                ms(start, marks[0]),
+                ms(marks[0], marks[1]),
+                ms(marks[1], marks[2]),
+            ],
+            counts: [
+                features.edges.len(),
+                features.planes.len(),
+                features.intensity.len(),
+            ],
+            departure,
+            estimate,
+        };
+        if send_beating(output, message, heartbeats, Heartbeats::ODOMETRY).is_err() {
+            break;
+        }
+    }
+    (world, odometry.map_sizes())
+}
+
+/// The publishing end: poses, predictions, status, trajectory files and the report.
+struct Sink {
+    base_from_sensor: Isometry3<f64>,
+    trajectory: Option<TrajectoryWriter>,
+    kitti: Option<TrajectoryWriter>,
+    keep_estimates: bool,
+    summary: Summary,
+    /// The latest base pose: time, pose, body twist, flags, when its sweep was received.
+    latest: Option<(u64, Isometry3<f64>, Vector6<f64>, StatusFlags, Instant)>,
+    /// Sweep period measured from consecutive poses, ns.
+    period_ns: u64,
+    // The reporting window.
+    window_start: Instant,
+    window_sweeps: u64,
+    window_packets: u64,
+    window_latency: Vec<f64>,
+    sweeps: u64,
+}
+
+impl Sink {
+    fn new(options: &Options) -> Result<Self> {
+        let trajectory = options
+            .trajectory
+            .as_deref()
+            .map(|p| TrajectoryWriter::create(p, false, options.trajectory_max_bytes))
+            .transpose()?;
+        let kitti = options
+            .kitti
+            .as_deref()
+            .map(|p| TrajectoryWriter::create(p, true, None))
+            .transpose()?;
+        Ok(Self {
+            base_from_sensor: options.base_from_sensor,
+            trajectory,
+            kitti,
+            keep_estimates: options.keep_estimates,
+            summary: Summary::default(),
+            latest: None,
+            period_ns: 100_000_000,
+            window_start: Instant::now(),
+            window_sweeps: 0,
+            window_packets: 0,
+            window_latency: Vec::new(),
+            sweeps: 0,
+        })
+    }
+
+    /// The base pose and body twist from the sensor's (see `MountingConfig`): the odom frame is
+    /// the base's first pose, `T_base = M · T_sensor · M⁻¹`, and the twist is `Ad_M` of the
+    /// sensor's.
+    fn to_base(
+        &self,
+        pose: &Isometry3<f64>,
+        twist: &Vector6<f64>,
+    ) -> (Isometry3<f64>, Vector6<f64>) {
+        let m = &self.base_from_sensor;
+        let base = m * pose * m.inverse();
+        let w = m.rotation * Vector3::new(twist[0], twist[1], twist[2]);
+        let v = m.rotation * Vector3::new(twist[3], twist[4], twist[5])
+            + m.translation.vector.cross(&w);
+        (base, Vector6::new(w.x, w.y, w.z, v.x, v.y, v.z))
+    }
+
+    fn take(&mut self, e: Estimated, bus: Option<&mut PoseBus>, counters: &ReceiveCounters) {
+        let estimate = &e.estimate;
+        let mut flags = match estimate.status {
+            TrackingStatus::Initialising => StatusFlags::INITIALISING,
+            TrackingStatus::Tracking => StatusFlags::TRACKING,
+            TrackingStatus::Degenerate => StatusFlags::TRACKING.with(StatusFlags::DEGENERATE),
+            TrackingStatus::Lost => StatusFlags::LOST,
+        };
+        if counters.silent.load(Ordering::Relaxed) {
+            flags = flags.with(StatusFlags::SENSOR_SILENT);
+        }
+        let (pose, twist) = self.to_base(&estimate.pose, &estimate.velocity);
+        if let Some((t, ..)) = self.latest {
+            let dt = estimate.time_ns.saturating_sub(t);
+            if dt > 0 && dt < RESUME_GAP_NS {
+                self.period_ns = dt;
+            }
+        }
+        let sample = PoseSample {
+            time_ns: estimate.time_ns,
+            pose,
+            velocity: twist,
+            flags,
+            quality: e.quality,
+        };
+        if let Some(b) = bus {
+            if let Err(err) = b.publish(&sample) {
+                tracing::warn!("{err:#}");
+            }
+        }
+        let latency = e.received.elapsed().as_secs_f64() * 1e3;
+        self.latest = Some((estimate.time_ns, pose, twist, flags, e.received));
+        self.sweeps += 1;
+        self.window_sweeps += 1;
+        self.window_latency.push(latency);
+
+        let stamped = StampedPose {
+            time_ns: estimate.time_ns,
+            pose: estimate.pose,
+        };
+        for (name, writer) in [
+            ("trajectory", &mut self.trajectory),
+            ("KITTI trajectory", &mut self.kitti),
+        ] {
+            if let Some(w) = writer.as_mut() {
+                if let Err(err) = w.write(&stamped) {
+                    // A full disk must not stop the poses: stop writing this file, say so once.
+                    tracing::error!("{name} no longer written: {err:#}");
+                    self.summary.output_errors.push(format!("{err:#}"));
+                    *writer = None;
+                }
+            }
+        }
+        let s = &mut self.summary;
+        s.statuses[match estimate.status {
+            TrackingStatus::Initialising => 0,
+            TrackingStatus::Tracking => 1,
+            TrackingStatus::Degenerate => 2,
+            TrackingStatus::Lost => 3,
+        }] += 1;
+        let t = &mut s.timings;
+        let [front, deskew, align, map] = e.stage_ms;
+        t.total.push(front + deskew + align + map);
+        t.front_end.push(front);
+        t.deskew.push(deskew);
+        t.align.push(align);
+        t.map.push(map);
+        t.latency.push(latency);
+        t.edges.push(e.counts[0] as f64);
+        t.planes.push(e.counts[1] as f64);
+        t.intensity.push(e.counts[2] as f64);
+        if let Some(a) = &estimate.alignment {
+            t.iterations.push(a.iterations as f64);
+            t.degeneracy.push(a.degeneracy);
+        }
+        if let Some(d) = e.departure {
+            s.departures.push(d);
+        }
+        if self.keep_estimates {
+            s.estimates.push(stamped);
+        }
+    }
+
+    /// Publishes the predicted pose: the latest estimate carried forward at its velocity to
+    /// now, never more than one sweep period past it (after that the sensor is late and a
+    /// prediction would be a guess).
+    fn predict(&mut self, bus: &mut PoseBus) {
+        let Some((t, pose, twist, flags, received)) = self.latest else {
+            return;
+        };
+        let ahead = received.elapsed().as_nanos() as u64;
+        if ahead > self.period_ns {
+            return;
+        }
+        let dt = ahead as f64 * 1e-9;
+        let sample = PoseSample {
+            time_ns: t + ahead,
+            pose: pose * exp(&(twist * dt)),
+            velocity: twist,
+            flags: flags.with(StatusFlags::PREDICTED),
+            quality: 0.0,
+        };
+        if let Err(err) = bus.publish_predicted(&sample) {
+            tracing::warn!("{err:#}");
+        }
+    }
+
+    /// Once a second: the status message, one log line, flushed trajectory files.
+    fn report(&mut self, bus: Option<&mut PoseBus>, counters: &ReceiveCounters) {
+        let seconds = self.window_start.elapsed().as_secs_f64().max(1e-3);
+        let packets = counters.packets.load(Ordering::Relaxed);
+        let silent = counters.silent.load(Ordering::Relaxed);
+        let sweep_rate = self.window_sweeps as f64 / seconds;
+        let packet_rate = packets.saturating_sub(self.window_packets) as f64 / seconds;
+        let median = quantile(&mut self.window_latency, 0.5);
+        let p99 = quantile(&mut self.window_latency, 0.99);
+        let dropped = counters.sweeps_dropped.load(Ordering::Relaxed);
+        let mut flags = self.latest.map_or(StatusFlags::INITIALISING, |l| l.3);
+        if silent {
+            flags = flags.with(StatusFlags::SENSOR_SILENT);
+        }
+        if let Some(b) = bus {
+            let mut status = Status::new(0, glint_driver::udp::host_now_ns());
+            status.sweeps_processed = self.sweeps;
+            status.sweeps_dropped = dropped;
+            status.packets_received = packets;
+            status.packets_dropped = counters.packets_missing.load(Ordering::Relaxed);
+            status.packets_malformed = counters.malformed.load(Ordering::Relaxed);
+            status.sweep_rate_hz = sweep_rate as f32;
+            status.packet_rate_hz = packet_rate as f32;
+            status.latency_median_ms = if median.is_finite() {
+                median as f32
+            } else {
+                0.0
+            };
+            status.latency_p99_ms = if p99.is_finite() { p99 as f32 } else { 0.0 };
+            status.flags = flags;
+            if let Err(err) = b.publish_status(status) {
+                tracing::warn!("{err:#}");
+            }
+        }
+        if self.window_sweeps > 0 || silent {
+            tracing::info!(
+                sweeps = self.sweeps,
+                rate_hz = format_args!("{sweep_rate:.1}"),
+                latency_median_ms = format_args!("{median:.1}"),
+                latency_p99_ms = format_args!("{p99:.1}"),
+                dropped,
+                silent,
+                "pipeline"
+            );
+        }
+        for writer in [&mut self.trajectory, &mut self.kitti] {
+            if let Some(w) = writer.as_mut() {
+                if let Err(err) = w.flush() {
+                    tracing::error!("{err:#}");
+                    self.summary.output_errors.push(format!("{err:#}"));
+                    *writer = None;
+                }
+            }
+        }
+        self.window_start = Instant::now();
+        self.window_sweeps = 0;
+        self.window_packets = packets;
+        self.window_latency.clear();
+    }
+
+    fn finish(mut self, world: Option<WorldMap>, options: &Options) -> Result<Summary> {
+        for writer in [self.trajectory.take(), self.kitti.take()]
+            .into_iter()
+            .flatten()
+        {
+            if let Err(err) = writer.finish() {
+                self.summary.output_errors.push(format!("{err:#}"));
+            }
+        }
+        if let (Some(map), Some((path, _))) = (world, options.map.as_ref()) {
+            if let Err(err) = write_map(path, &map.points()) {
+                self.summary.output_errors.push(format!("{err:#}"));
+            }
+        }
+        Ok(self.summary)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pace_parses() {
+        assert_eq!("max".parse::<Pace>(), Ok(Pace::Max));
+        assert_eq!("realtime".parse::<Pace>(), Ok(Pace::Factor(1.0)));
+        assert_eq!("2.5".parse::<Pace>(), Ok(Pace::Factor(2.5)));
+        assert!("0".parse::<Pace>().is_err());
+        assert!("fast".parse::<Pace>().is_err());
+        assert!("nan".parse::<Pace>().is_err());
+    }
+
+    #[test]
+    fn samples_stay_bounded() {
+        let mut s = Samples::default();
+        for i in 0..(Samples::CAPACITY + 10) {
+            s.push(i as f64);
+        }
+        assert_eq!(s.len(), Samples::CAPACITY);
+        // The ten oldest were overwritten.
+        assert_eq!(s.quantile(0.0), 10.0);
+    }
+
+    #[test]
+    fn the_base_pose_follows_the_mounting() {
+        // Sensor mounted 1 m ahead of the base, facing backwards; the sensor drives 1 m along its
+        // own x (backwards for the base) while turning.
+        let m = Isometry3::from_parts(
+            nalgebra::Translation3::new(1.0, 0.0, 0.0),
+            nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::PI),
+        );
+        let options_sink = Sink {
+            base_from_sensor: m,
+            trajectory: None,
+            kitti: None,
+            keep_estimates: false,
+            summary: Summary::default(),
+            latest: None,
+            period_ns: 100_000_000,
+            window_start: Instant::now(),
+            window_sweeps: 0,
+            window_packets: 0,
+            window_latency: Vec::new(),
+            sweeps: 0,
+        };
+        let twist = Vector6::new(0.0, 0.0, 0.3, 1.0, 0.0, 0.0);
+        let sensor_pose = exp(&twist);
+        let (base, base_twist) = options_sink.to_base(&sensor_pose, &twist);
+        // Consistency: the base pose is the exponential of the base twist.
+        let from_twist = exp(&base_twist);
+        assert!((base.translation.vector - from_twist.translation.vector).norm() < 1e-9);
+        assert!(base.rotation.angle_to(&from_twist.rotation) < 1e-9);
+        // And the sensor, seen from the moved base, is where it was mounted.
+        let sensor_in_odom = base * m;
+        let expected = m * sensor_pose;
+        assert!((sensor_in_odom.translation.vector - expected.translation.vector).norm() < 1e-9);
+    }
+}

@@ -1,0 +1,106 @@
+//! `glintd run`: the live daemon. Reads the TOML configuration, listens for the sensor, runs the
+//! pipeline, publishes on iceoryx2, streams the trajectory to its file, and talks to systemd:
+//! READY once the sockets are bound and the services exist, WATCHDOG while every stage is alive,
+//! STOPPING on the way out. SIGTERM or SIGINT drain the pipeline and write the outputs.
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{anyhow, Result};
+use clap::Args;
+use sd_notify::NotifyState;
+
+use crate::config::DaemonConfig;
+use crate::pipeline::{self, Input, Options, PublishOptions};
+
+/// Arguments of `glintd run`.
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// The configuration (TOML; see systemd/glintd.toml). Without it, the defaults: listen on
+    /// every interface at ports 2368 and 8308, publish on domain "default".
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Override the configuration's `ipc.domain`.
+    #[arg(long)]
+    pub domain: Option<String>,
+    /// Check the configuration and exit.
+    #[arg(long)]
+    pub check: bool,
+}
+
+/// Runs the command.
+pub fn run(args: RunArgs) -> Result<()> {
+    let mut config = match &args.config {
+        Some(path) => DaemonConfig::load(path)?,
+        None => DaemonConfig::parse("")?,
+    };
+    if let Some(domain) = args.domain {
+        glint_ipc::Domain::new(&domain).map_err(|e| anyhow!("--domain {domain:?}: {e}"))?;
+        config.ipc.domain = domain;
+    }
+    let stream = config.stream_config()?;
+    if args.check {
+        say!("configuration ok");
+        return Ok(());
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    crate::signals::stop_on_signals(&stop)?;
+    let mut watchdog_usec = 0;
+    let watchdog = sd_notify::watchdog_enabled(false, &mut watchdog_usec);
+    if watchdog {
+        tracing::info!(
+            "systemd watchdog every {:.1} s",
+            Duration::from_micros(watchdog_usec).as_secs_f64()
+        );
+    }
+    let summary = pipeline::run(Options {
+        input: Input::Live {
+            udp: config.udp_config(),
+            silence: Duration::from_secs_f64(config.sensor.silence_timeout_s),
+        },
+        stream,
+        odometry: config.odometry.clone(),
+        queue: config.pipeline.queue_sweeps,
+        base_from_sensor: config.mounting.base_from_sensor(),
+        publish: config.ipc.publish.then(|| PublishOptions {
+            domain: config.ipc.domain.clone(),
+            predicted_rate_hz: config.ipc.predicted_rate_hz,
+        }),
+        trajectory: config.output.trajectory.clone(),
+        trajectory_max_bytes: Some(config.output.trajectory_max_bytes),
+        kitti: None,
+        map: config
+            .output
+            .map
+            .clone()
+            .map(|p| (p, config.output.map_voxel)),
+        keep_estimates: false,
+        known_poses: None,
+        stop,
+        on_ready: Some(Box::new(|| {
+            tracing::info!("ready");
+            // Outside systemd there is no socket to tell: not an error.
+            let _ = sd_notify::notify(false, &[NotifyState::Ready]);
+        })),
+        on_alive: watchdog.then(|| {
+            Box::new(|| {
+                let _ = sd_notify::notify(false, &[NotifyState::Watchdog]);
+            }) as Box<dyn FnMut()>
+        }),
+    });
+    let _ = sd_notify::notify(false, &[NotifyState::Stopping]);
+    let summary = summary?;
+    tracing::info!(
+        sweeps = summary.statuses.iter().sum::<u64>(),
+        dropped = summary.sweeps_dropped,
+        "stopped"
+    );
+    anyhow::ensure!(
+        summary.output_errors.is_empty(),
+        "output files could not be written: {}",
+        summary.output_errors.join("; ")
+    );
+    Ok(())
+}
