@@ -85,8 +85,9 @@ pub struct OdometryEstimate {
     pub alignment: Option<Alignment>,
 }
 
-/// Steps 0 and 3–5, holding the local maps and the motion between sweeps.
-#[derive(Debug)]
+/// Steps 0 and 3–5, holding the local maps and the motion between sweeps. `Clone`, so a caller
+/// can try a doubtful sweep on a copy and keep the maps only if it matches.
+#[derive(Debug, Clone)]
 pub struct Odometry {
     config: OdometryConfig,
     edges: LocalMap,
