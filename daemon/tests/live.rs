@@ -569,3 +569,36 @@ fn record_captures_what_the_sensor_sends() {
     assert!(text.contains("0 packets missing"), "{text}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_full_disk_stops_the_file_not_the_poses() {
+    if !Path::new("/dev/full").exists() {
+        eprintln!("skipped: no /dev/full on this machine");
+        return;
+    }
+    let dir = scratch("full");
+    simulate(&dir, "warehouse", 36, 4.0);
+    let d = domain("full");
+    let echo = spawn_echo(&d, "odom", 20.0);
+    let o = glintd()
+        .args([
+            "replay",
+            dir.join("scan.pcap").to_str().unwrap(),
+            "--domain",
+            &d,
+            "--trajectory",
+            "/dev/full",
+            "--pace",
+            "2",
+        ])
+        .output()
+        .unwrap();
+    // The run reports the lost file and fails, but only after every pose went out.
+    assert!(!o.status.success());
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(stderr.contains("could not be written"), "{stderr}");
+    let seq = sequences(&echoed_lines(echo));
+    assert!(seq.len() >= 35, "{} poses", seq.len());
+    assert!(seq.windows(2).all(|w| w[1] == w[0] + 1));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
