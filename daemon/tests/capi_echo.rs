@@ -41,8 +41,10 @@ fn scratch(name: &str) -> PathBuf {
     dir
 }
 
-/// The newest `libglint-<hash>.<ext>` cargo built for this test (the dev-dependency), copied to
-/// `dir/libglint.<ext>` under the name a C project links with.
+/// The `libglint.<ext>` cargo built for this test (the dev-dependency) in the test's own `deps`
+/// directory, so always the one of this profile and this source, copied to `dir`. Cargo gives
+/// cdylib and staticlib outputs no hash suffix today; a `libglint-<hash>.<ext>` is accepted too
+/// (the newest wins) should that change.
 fn library(dir: &Path, ext: &str) -> PathBuf {
     let deps = std::env::current_exe()
         .unwrap()
@@ -55,10 +57,11 @@ fn library(dir: &Path, ext: &str) -> PathBuf {
         .map(|e| e.path())
         .filter(|p| {
             let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
-            name.starts_with("libglint-") && name.ends_with(&format!(".{ext}"))
+            name == format!("libglint.{ext}")
+                || (name.starts_with("libglint-") && name.ends_with(&format!(".{ext}")))
         })
         .max_by_key(|p| p.metadata().and_then(|m| m.modified()).ok())
-        .unwrap_or_else(|| panic!("no libglint-*.{ext} in {}", deps.display()));
+        .unwrap_or_else(|| panic!("no libglint.{ext} in {}", deps.display()));
     let to = dir.join(format!("libglint.{ext}"));
     std::fs::copy(&newest, &to).unwrap();
     to
@@ -129,6 +132,7 @@ struct Consumer {
     child: Child,
     lines: Receiver<String>,
     got: Vec<Line>,
+    connected: bool,
 }
 
 /// One printed pose: sequence, timestamp, position and orientation as bit patterns, status.
@@ -191,6 +195,7 @@ impl Consumer {
             child,
             lines,
             got: Vec::new(),
+            connected: false,
         }
     }
 
@@ -200,7 +205,13 @@ impl Consumer {
         while !enough(&self.got) {
             let left = deadline.saturating_duration_since(Instant::now());
             match self.lines.recv_timeout(left) {
-                Ok(l) => self.got.push(Line::parse(&l)),
+                Ok(l) => {
+                    let line = Line::parse(&l);
+                    // Once connected, further probes (sent while others connect) are noise.
+                    if !(self.connected && line.sequence == PROBE) {
+                        self.got.push(line);
+                    }
+                }
                 Err(_) => break,
             }
         }
@@ -259,6 +270,7 @@ fn connect(domain: &Domain, consumers: &mut [&mut Consumer]) -> PosePublisher {
             });
         }
         c.got.clear();
+        c.connected = true;
     }
     stand_in
 }
