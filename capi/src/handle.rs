@@ -165,6 +165,10 @@ impl<S: Source> Handle<S> {
     /// Remembers how the last call ended: its message for C, and a dropped connection after a
     /// port failure so the next call reconnects.
     pub fn record(&mut self, result: Result<c_int, &CapiError>) {
+        if matches!(result, Ok(GLINT_OK)) && self.message.is_empty() {
+            // The steady state of a controller's loop: nothing to change, nothing to allocate.
+            return;
+        }
         let text = match result {
             Ok(GLINT_OK) => String::new(),
             Ok(GLINT_NO_DATA) => format!("no unread {} on {}", S::NOUN, self.service()),
