@@ -15,7 +15,8 @@
  *  - After any call, glint_*_last_error(handle) says why it did not return GLINT_OK ("" after
  *    GLINT_OK). The text stays valid until the next call on that handle.
  *  - A handle is used by one thread at a time (it may move between threads) and never after
- *    close. Different handles are independent; the library keeps no global state.
+ *    close. Different handles are independent: libglint keeps no global state of its own
+ *    (iceoryx2 underneath reads its configuration file once per process).
  *  - Nothing blocks except the *_wait functions, which sleep on the event service glintd
  *    notifies after every message (no polling while connected).
  *  - Strings are NUL-terminated ASCII. Domains are 1-64 characters from [A-Za-z0-9_-].
@@ -175,7 +176,8 @@ int glint_pose_subscriber_wait(glint_pose_subscriber *sub, uint32_t timeout_ms,
  *  next call on sub. */
 const char *glint_pose_subscriber_last_error(const glint_pose_subscriber *sub);
 
-/** Releases the handle and its iceoryx2 ports. NULL is allowed. Returns GLINT_OK. */
+/** Releases the handle and its iceoryx2 ports. NULL is allowed. Returns GLINT_OK (or
+ *  GLINT_ERR_INTERNAL if releasing failed inside the library; the handle is gone either way). */
 int glint_pose_subscriber_close(glint_pose_subscriber *sub);
 
 /* ---- Status subscriber ----------------------------------------------------------------- */
@@ -197,7 +199,7 @@ int glint_status_subscriber_wait(glint_status_subscriber *sub, uint32_t timeout_
 /** Why the last call on sub did not return GLINT_OK ("" if it did). Never NULL. */
 const char *glint_status_subscriber_last_error(const glint_status_subscriber *sub);
 
-/** Releases the handle. NULL is allowed. Returns GLINT_OK. */
+/** Releases the handle; as glint_pose_subscriber_close. */
 int glint_status_subscriber_close(glint_status_subscriber *sub);
 
 /* ---- Codes --------------------------------------------------------------------------------- */
