@@ -8,7 +8,10 @@ use glint_core::backend::pose_graph::PoseGraphConfig;
 
 #[test]
 fn parking_garage_converges_to_the_known_optimum() {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/parking-garage.g2o");
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../shared/data/parking-garage.g2o"
+    );
     let text = match std::fs::read_to_string(path) {
         Ok(t) => t,
         Err(e) if std::env::var("CI").as_deref() != Ok("true") => {

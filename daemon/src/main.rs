@@ -20,6 +20,7 @@ mod echo_cmd;
 mod eval_cmd;
 mod info_cmd;
 mod outputs;
+mod posegraph_cmd;
 mod publish;
 mod replay_cmd;
 mod sim_cmd;
@@ -48,6 +49,8 @@ enum Command {
     Sim(sim_cmd::SimArgs),
     /// Print the poses (or status) a running glintd publishes.
     Echo(echo_cmd::EchoArgs),
+    /// Optimise a g2o pose graph: initial and final cost, iterations, time.
+    Posegraph(posegraph_cmd::PoseGraphArgs),
 }
 
 fn print_line(args: std::fmt::Arguments<'_>) {
@@ -82,6 +85,7 @@ fn main() -> ExitCode {
         Command::Replay(args) => replay_cmd::run(args),
         Command::Eval(args) => eval_cmd::run(args),
         Command::Sim(args) => sim_cmd::run(args),
+        Command::Posegraph(args) => posegraph_cmd::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -36,7 +36,9 @@ pub enum G2oError {
         reason: String,
     },
     /// A record type we do not read (2-D poses, landmarks, …).
-    #[error("line {line}: unsupported record {tag:?} (only VERTEX_SE3:QUAT, EDGE_SE3:QUAT and FIX)")]
+    #[error(
+        "line {line}: unsupported record {tag:?} (only VERTEX_SE3:QUAT, EDGE_SE3:QUAT and FIX)"
+    )]
     Unsupported {
         /// 1-based line number.
         line: usize,

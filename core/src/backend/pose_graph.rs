@@ -158,7 +158,11 @@ impl PoseGraph {
                 }
             }
             let finite = e.information.iter().all(|v| v.is_finite())
-                && e.measurement.translation.vector.iter().all(|v| v.is_finite())
+                && e.measurement
+                    .translation
+                    .vector
+                    .iter()
+                    .all(|v| v.is_finite())
                 && e.measurement.rotation.coords.iter().all(|v| v.is_finite());
             if !finite {
                 return Err(PoseGraphError::NotFinite(k));
@@ -290,7 +294,11 @@ impl PoseGraph {
         variable: &[usize],
         m: usize,
         width: f64,
-    ) -> (super::sparse::BlockMatrix, Vec<Vector6<f64>>, Vec<Vector6<f64>>) {
+    ) -> (
+        super::sparse::BlockMatrix,
+        Vec<Vector6<f64>>,
+        Vec<Vector6<f64>>,
+    ) {
         let mut matrix = symbolic.matrix();
         let mut gradient = vec![Vector6::zeros(); m];
         let mut diagonal = vec![Vector6::zeros(); m];
@@ -306,10 +314,10 @@ impl PoseGraph {
                 let mut d = Vector6::zeros();
                 d[k] = H;
                 let (plus, minus) = (exp(&d), exp(&-d));
-                let col_a = (edge_error(e, &(plus * a), b) - edge_error(e, &(minus * a), b))
-                    / (2.0 * H);
-                let col_b = (edge_error(e, a, &(plus * b)) - edge_error(e, a, &(minus * b)))
-                    / (2.0 * H);
+                let col_a =
+                    (edge_error(e, &(plus * a), b) - edge_error(e, &(minus * a), b)) / (2.0 * H);
+                let col_b =
+                    (edge_error(e, a, &(plus * b)) - edge_error(e, a, &(minus * b))) / (2.0 * H);
                 ja.set_column(k, &col_a);
                 jb.set_column(k, &col_b);
             }

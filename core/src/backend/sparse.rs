@@ -35,8 +35,7 @@ impl Symbolic {
                 adjacency[b].insert(a);
             }
         }
-        let mut queue: BTreeSet<(usize, usize)> =
-            (0..n).map(|v| (adjacency[v].len(), v)).collect();
+        let mut queue: BTreeSet<(usize, usize)> = (0..n).map(|v| (adjacency[v].len(), v)).collect();
         let mut position = vec![usize::MAX; n];
         let mut eliminated_neighbours: Vec<Vec<usize>> = Vec::with_capacity(n);
         while let Some((_, v)) = queue.pop_first() {
@@ -105,7 +104,11 @@ impl Symbolic {
 
     /// Solves `M·x = rhs` (blocks in the original numbering) by factorising `m` in place.
     /// `None` if `m` is not positive definite.
-    pub(crate) fn solve(&self, m: &mut BlockMatrix, rhs: &[Vector6<f64>]) -> Option<Vec<Vector6<f64>>> {
+    pub(crate) fn solve(
+        &self,
+        m: &mut BlockMatrix,
+        rhs: &[Vector6<f64>],
+    ) -> Option<Vec<Vector6<f64>>> {
         let n = self.columns.len();
         // Factorise: M = L·Lᵀ, L's diagonal blocks lower-triangular.
         let mut inverse_diagonal = Vec::with_capacity(n);
@@ -201,7 +204,8 @@ mod tests {
         }
         let rhs: Vec<Vector6<f64>> = (0..n).map(|_| Vector6::from_fn(|_, _| next())).collect();
         let x = symbolic.solve(&mut m, &rhs).expect("positive definite");
-        let flat = nalgebra::DVector::from_iterator(6 * n, rhs.iter().flat_map(|v| v.iter().copied()));
+        let flat =
+            nalgebra::DVector::from_iterator(6 * n, rhs.iter().flat_map(|v| v.iter().copied()));
         let expected = dense.cholesky().expect("positive definite").solve(&flat);
         for v in 0..n {
             let e = expected.rows(6 * v, 6);
