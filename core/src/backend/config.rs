@@ -71,6 +71,11 @@ pub struct ScanContextConfig {
     pub similarity_threshold: f64,
     /// Candidates verified per keyframe at most, best similarity first.
     pub max_verifications: usize,
+    /// Keyframes without a search after an accepted loop (the authors' code waits 20 frames):
+    /// the next keyframes see the same place, and one loop per visit is enough to correct it.
+    pub cooldown_after_accept: usize,
+    /// Likewise after a rejected verification (the authors' code: 2).
+    pub cooldown_after_reject: usize,
 }
 
 impl Default for ScanContextConfig {
@@ -88,6 +93,8 @@ impl Default for ScanContextConfig {
             ring_key_candidates: 10,
             similarity_threshold: 0.6,
             max_verifications: 2,
+            cooldown_after_accept: 10,
+            cooldown_after_reject: 2,
         }
     }
 }
@@ -110,6 +117,10 @@ pub struct VerificationConfig {
     /// Points lower than this in the sensor frame are floor for the score, m (the sensor sits
     /// 0.5–1 m up on an AGV).
     pub floor_height: f32,
+    /// Largest rotation between the aligned loop and the graph's own relative pose, rad.
+    /// Odometry's heading drifts by a few degrees per lap at most; a symmetric place matched
+    /// the wrong way round (a corridor seen from its other end) disagrees by ~180°.
+    pub max_rotation_disagreement: f64,
     /// Fewest such correspondences.
     pub min_correspondences: usize,
     /// Largest mean robust cost per residual of the fine alignment (Huber at 0.1 m: 0.5·r² for
@@ -141,6 +152,7 @@ impl Default for VerificationConfig {
             min_inlier_ratio: 0.6,
             inlier_distance: 0.3,
             floor_height: -0.3,
+            max_rotation_disagreement: 0.35,
             min_correspondences: 200,
             max_cost: 0.0012,
         }

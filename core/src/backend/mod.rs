@@ -95,6 +95,8 @@ pub struct BackEnd {
     correction: Isometry3<f64>,
     loops: Vec<LoopClosure>,
     stats: BackEndStats,
+    /// The first keyframe index allowed to search (cool-down).
+    next_search: usize,
 }
 
 fn information(sigma_translation: f64, sigma_rotation: f64) -> Matrix6<f64> {
@@ -116,6 +118,7 @@ impl BackEnd {
             correction: Isometry3::identity(),
             loops: Vec::new(),
             stats: BackEndStats::default(),
+            next_search: 0,
         }
     }
 
@@ -199,6 +202,16 @@ impl BackEnd {
 
         let sc = &self.config.scan_context;
         let here = self.graph.poses[index].translation.vector;
+        if index < self.next_search {
+            on_stage(BackEndStage::Search);
+            return KeyframeOutcome {
+                index,
+                candidates: Vec::new(),
+                verifications: Vec::new(),
+                accepted: None,
+                optimization: None,
+            };
+        }
         let candidates = search(
             &self.descriptors[index],
             &self.descriptors[..index],
@@ -236,6 +249,12 @@ impl BackEnd {
             }
             self.stats.rejected += 1;
             verifications.push(v);
+        }
+        let sc = &self.config.scan_context;
+        if accepted.is_some() {
+            self.next_search = index + 1 + sc.cooldown_after_accept;
+        } else if !verifications.is_empty() {
+            self.next_search = index + 1 + sc.cooldown_after_reject;
         }
 
         let mut optimization = None;
@@ -283,12 +302,17 @@ impl BackEnd {
             .collect();
         let yaw_guess = Isometry3::rotation(nalgebra::Vector3::z() * c.yaw);
         let graph_guess = anchor * self.graph.poses[index];
-        verify(
+        let mut v = verify(
             &self.keyframes[index],
             &submap,
             &[yaw_guess, graph_guess],
             &self.config.verification,
-        )
+        );
+        let disagreement = (graph_guess.rotation.inverse() * v.relative.rotation).angle();
+        if disagreement > self.config.verification.max_rotation_disagreement {
+            v.accepted = false;
+        }
+        v
     }
 
     /// The final trajectory: each sweep's odometry pose corrected through the latest keyframe

@@ -124,8 +124,7 @@ impl Symbolic {
                 let i = column[a];
                 let l_ik = m.lower[k][a];
                 m.diagonal[i] -= l_ik * l_ik.transpose();
-                for b in 0..a {
-                    let j = column[b];
+                for (b, &j) in column.iter().enumerate().take(a) {
                     let l_jk = m.lower[k][b];
                     let slot = self.columns[j]
                         .binary_search(&i)
@@ -207,9 +206,9 @@ mod tests {
         let flat =
             nalgebra::DVector::from_iterator(6 * n, rhs.iter().flat_map(|v| v.iter().copied()));
         let expected = dense.cholesky().expect("positive definite").solve(&flat);
-        for v in 0..n {
+        for (v, xv) in x.iter().enumerate() {
             let e = expected.rows(6 * v, 6);
-            assert!((x[v] - e).norm() < 1e-9, "block {v}: {} vs {}", x[v], e);
+            assert!((xv - e).norm() < 1e-9, "block {v}: {xv} vs {e}");
         }
         assert!(symbolic.factor_blocks() >= n + pairs.len());
     }
