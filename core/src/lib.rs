@@ -5,6 +5,7 @@
 //! points of the moving frame (sensor) into the fixed frame (world/map); units SI; frames
 //! REP-103; quaternions Hamilton (`nalgebra::UnitQuaternion`), written `qx qy qz qw` in files.
 
+pub mod backend;
 pub mod metrics;
 pub mod odometry;
 pub mod trajectory;

@@ -130,6 +130,13 @@ impl Odometry {
         (self.edges.len(), self.planes.len(), self.intensity.len())
     }
 
+    /// The last registered sweep's edge, plane and intensity points, deskewed with the motion
+    /// just estimated, in the sensor frame at its reference time: what a keyframe keeps (call
+    /// right after [`Self::register`]).
+    pub fn deskewed_input(&self) -> &AlignmentInput {
+        &self.input
+    }
+
     /// The last pose, if any.
     pub fn last_pose(&self) -> Option<(u64, Isometry3<f64>)> {
         self.last

@@ -22,6 +22,7 @@ mod eval_cmd;
 mod info_cmd;
 mod outputs;
 mod pipeline;
+mod posegraph_cmd;
 mod publish;
 mod record_cmd;
 mod replay_cmd;
@@ -57,6 +58,8 @@ enum Command {
     Echo(echo_cmd::EchoArgs),
     /// Capture the sensor's packets into a pcap for later replay.
     Record(record_cmd::RecordArgs),
+    /// Optimise a g2o pose graph: initial and final cost, iterations, time.
+    Posegraph(posegraph_cmd::PoseGraphArgs),
 }
 
 fn print_line(args: std::fmt::Arguments<'_>) {
@@ -111,6 +114,7 @@ fn main() -> ExitCode {
         Command::Replay(args) => replay_cmd::run(args),
         Command::Eval(args) => eval_cmd::run(args),
         Command::Sim(args) => sim_cmd::run(args),
+        Command::Posegraph(args) => posegraph_cmd::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
