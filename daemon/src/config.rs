@@ -7,6 +7,7 @@ use std::net::{IpAddr, Ipv4Addr};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use glint_core::backend::config::BackEndConfig;
 use glint_core::config::OdometryConfig;
 use glint_driver::calibration::load_calibration;
 use glint_driver::udp::UdpConfig;
@@ -24,6 +25,8 @@ pub struct DaemonConfig {
     pub pipeline: PipelineConfig,
     /// The algorithm's parameters (`glint_core::config`), by section.
     pub odometry: OdometryConfig,
+    /// The back end's parameters (`glint_core::backend::config`), by section.
+    pub backend: BackEndConfig,
     /// Where the sensor sits on the robot.
     pub mounting: MountingConfig,
     /// The iceoryx2 services.
@@ -82,6 +85,8 @@ impl Default for SensorConfig {
 pub struct PipelineConfig {
     /// Use intensity (false: the geometry-only ablation).
     pub intensity: bool,
+    /// Close loops and correct the `map` frame (false: odometry only, `map` = `odom`).
+    pub loop_closure: bool,
     /// Sweeps that may wait between stages. Live, a sweep that finds its queue full is dropped
     /// whole (counted): a late pose is worth less than the next one.
     pub queue_sweeps: usize,
@@ -91,6 +96,7 @@ impl Default for PipelineConfig {
     fn default() -> Self {
         Self {
             intensity: true,
+            loop_closure: true,
             queue_sweeps: 2,
         }
     }
@@ -146,8 +152,10 @@ impl Default for IpcConfig {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct OutputConfig {
-    /// Trajectory of the sensor (TUM), streamed as it grows.
+    /// Trajectory of the sensor in the map frame (TUM) as published, streamed as it grows.
     pub trajectory: Option<PathBuf>,
+    /// The odometry's own trajectory (odom frame), likewise.
+    pub odom_trajectory: Option<PathBuf>,
     /// When the trajectory file reaches this size it is renamed to `<name>.1` (replacing the
     /// previous one) and a new one is started, bytes.
     pub trajectory_max_bytes: u64,
@@ -161,6 +169,7 @@ impl Default for OutputConfig {
     fn default() -> Self {
         Self {
             trajectory: None,
+            odom_trajectory: None,
             trajectory_max_bytes: 64 << 20,
             map: None,
             map_voxel: 0.1,

@@ -1,12 +1,17 @@
 //! The real-time pipeline every mode runs: a receive thread (UDP sockets or a paced capture)
 //! closes sweeps → a front-end thread calibrates them and selects features → an odometry thread
 //! registers them → this (the calling) thread publishes poses on iceoryx2, writes the outputs and
-//! reports health. Stages talk over bounded crossbeam channels; nothing queues without bound.
+//! reports health. Beside the odometry, a back-end thread takes its keyframes, closes loops and
+//! hands back the `map ← odom` correction. Stages talk over bounded crossbeam channels; nothing
+//! queues without bound.
 //!
 //! Live, the receive thread never waits: a sweep that finds the front end's queue full is
 //! dropped whole and counted, and the stages behind it wait on each other. In a replay the reader
 //! waits instead, so every sweep is processed in capture order and the outputs depend on the data
 //! alone: the same capture and configuration give byte-identical trajectory files at any pace.
+//! For that, a replay also runs the back end in lockstep: the odometry waits for its answer at
+//! each keyframe, so a correction applies from a sweep fixed by the data. Live, the odometry never
+//! waits for the back end; a correction applies from whichever sweep follows its arrival.
 //!
 //! The publishing thread owns the iceoryx2 ports (they are not `Send`), so it also runs the
 //! predicted stream's and the status report's timers. Each stage beats a heartbeat while it works
@@ -21,6 +26,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
 use crossbeam_channel::{bounded, never, tick, Receiver, RecvTimeoutError, Sender, TrySendError};
+use glint_core::backend::config::BackEndConfig;
+use glint_core::backend::keyframe::{Keyframe, KeyframeSelector};
+use glint_core::backend::{BackEnd, BackEndStage, BackEndStats};
 use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
 use glint_core::odometry::{FrontEnd, Odometry, OdometryEstimate, Stage, TrackingStatus};
@@ -117,6 +125,10 @@ pub struct Options {
     /// Keep every pose and every sweep's timing for the report (replays; a live run keeps a
     /// bounded window).
     pub keep_estimates: bool,
+    /// Loop closure and pose-graph optimisation (None: odometry only).
+    pub backend: Option<BackEndConfig>,
+    /// The odometry's own poses (TUM), streamed, beside the corrected `trajectory`.
+    pub odom_trajectory: Option<PathBuf>,
     /// Diagnostic: start each sweep's alignment from these poses (ground truth in the map
     /// frame's origin) and grow the map from them.
     pub known_poses: Option<Vec<StampedPose>>,
@@ -218,6 +230,27 @@ pub struct Summary {
     pub wall: Duration,
     /// Output files that could not be written (the run went on publishing).
     pub output_errors: Vec<String>,
+    /// The back end's report, when it ran.
+    pub slam: Option<SlamSummary>,
+}
+
+/// What the back end did.
+#[derive(Debug, Default)]
+pub struct SlamSummary {
+    /// Keyframes, loops found, verified, accepted and rejected.
+    pub stats: BackEndStats,
+    /// Every sweep's pose after the last optimisation (when `keep_estimates`).
+    pub trajectory: Vec<StampedPose>,
+    /// Per keyframe: descriptor, candidate search, each verification, each optimisation (ms).
+    pub descriptor_ms: Samples,
+    /// See `descriptor_ms`.
+    pub search_ms: Samples,
+    /// See `descriptor_ms`.
+    pub verify_ms: Samples,
+    /// See `descriptor_ms`.
+    pub optimize_ms: Samples,
+    /// Keyframes the back end could not take in time (live only).
+    pub keyframes_dropped: u64,
 }
 
 /// Counters the receive thread shares with the reporter.
@@ -251,13 +284,16 @@ impl ReceiveCounters {
 /// Liveness of the stages: the time (ms since the run started) each last showed progress.
 struct Heartbeats {
     start: Instant,
-    beats: [AtomicU64; 3],
+    beats: [AtomicU64; 4],
+    /// Which stages run (the back end is optional).
+    active: [bool; 4],
 }
 
 impl Heartbeats {
     const RECEIVE: usize = 0;
     const FRONT_END: usize = 1;
     const ODOMETRY: usize = 2;
+    const BACK_END: usize = 3;
     /// A stage silent for longer than this is stuck.
     const STALE: Duration = Duration::from_secs(3);
 
@@ -267,9 +303,10 @@ impl Heartbeats {
 
     fn all_alive(&self) -> bool {
         let now = self.start.elapsed().as_millis() as u64;
-        self.beats
-            .iter()
-            .all(|b| now.saturating_sub(b.load(Ordering::Relaxed)) < Self::STALE.as_millis() as u64)
+        self.beats.iter().zip(self.active).all(|(b, active)| {
+            !active
+                || now.saturating_sub(b.load(Ordering::Relaxed)) < Self::STALE.as_millis() as u64
+        })
     }
 }
 
@@ -300,6 +337,10 @@ struct Estimated {
     stage_ms: [f64; 4],
     counts: [usize; 3],
     departure: Option<Vector3<f64>>,
+    /// `map ← odom` as of this sweep.
+    map_from_odom: Isometry3<f64>,
+    /// The correction changed with this sweep.
+    loop_closed: bool,
 }
 
 /// A gap between sweeps longer than this (sensor silence, lost packets) voids the constant
@@ -370,6 +411,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
     let heartbeats = Arc::new(Heartbeats {
         start: started,
         beats: Default::default(),
+        active: [true, true, true, options.backend.is_some()],
     });
     let counters = Arc::new(ReceiveCounters::default());
 
@@ -438,16 +480,41 @@ pub fn run(mut options: Options) -> Result<Summary> {
             Ok(())
         })?
     };
+    let (link, backend) = match options.backend.clone() {
+        Some(config) => {
+            let (keyframe_tx, keyframe_rx) = bounded::<Keyframe>(BACK_END_QUEUE);
+            let (reply_tx, reply_rx) = bounded::<Isometry3<f64>>(BACK_END_QUEUE);
+            let link = BackEndLink {
+                config: config.clone(),
+                keyframes: keyframe_tx,
+                corrections: reply_rx,
+                lockstep: matches!(options.input, Input::Capture { .. }),
+                dropped: 0,
+            };
+            let heartbeats = heartbeats.clone();
+            let handle = spawn("glint-backend", move || {
+                Ok(run_backend(&config, &keyframe_rx, &reply_tx, &heartbeats))
+            })?;
+            (Some(link), Some(handle))
+        }
+        None => (None, None),
+    };
     let odometry = {
         let heartbeats = heartbeats.clone();
         let config = options.odometry.clone();
         let known = options.known_poses.take();
-        let map_voxel = options.map.as_ref().map(|(_, v)| *v);
+        // With a back end, the exported map is rebuilt from its optimised keyframes instead.
+        let map_voxel = options
+            .map
+            .as_ref()
+            .filter(|_| options.backend.is_none())
+            .map(|(_, v)| *v);
         spawn("glint-odometry", move || {
             Ok(run_odometry(
                 &config,
                 known,
                 map_voxel,
+                link,
                 &feature_rx,
                 &estimate_tx,
                 &heartbeats,
@@ -494,8 +561,12 @@ pub fn run(mut options: Options) -> Result<Summary> {
 
     let capture = join(receiver, "receive")?;
     join(front_end, "front end")?;
-    let (world, map_sizes) = join(odometry, "odometry")?;
-    let mut summary = sink.finish(world, &options)?;
+    let (world, map_sizes, keyframes_dropped) = join(odometry, "odometry")?;
+    let backend = backend.map(|b| join(b, "back end")).transpose()?;
+    let mut summary = sink.finish(world, backend, &options)?;
+    if let Some(slam) = summary.slam.as_mut() {
+        slam.keyframes_dropped = keyframes_dropped;
+    }
     summary.map_sizes = map_sizes;
     summary.capture = capture;
     summary.sweeps_dropped = counters.sweeps_dropped.load(Ordering::Relaxed);
@@ -759,15 +830,104 @@ fn send_beating<T>(
     }
 }
 
+/// Keyframes allowed to wait for the back end (live: more are dropped, counted).
+const BACK_END_QUEUE: usize = 8;
+
+/// The odometry's end of the back end.
+struct BackEndLink {
+    config: BackEndConfig,
+    keyframes: Sender<Keyframe>,
+    corrections: Receiver<Isometry3<f64>>,
+    /// Wait for the back end's answer at every keyframe (replays).
+    lockstep: bool,
+    dropped: u64,
+}
+
+impl BackEndLink {
+    /// Hands a keyframe over; in lockstep, waits for the correction it leads to.
+    fn offer(&mut self, keyframe: Keyframe, heartbeats: &Heartbeats) -> Option<Isometry3<f64>> {
+        if self.lockstep {
+            send_beating(&self.keyframes, keyframe, heartbeats, Heartbeats::ODOMETRY).ok()?;
+            loop {
+                match self.corrections.recv_timeout(IDLE_BEAT) {
+                    Ok(c) => return Some(c),
+                    Err(RecvTimeoutError::Timeout) => heartbeats.beat(Heartbeats::ODOMETRY),
+                    Err(RecvTimeoutError::Disconnected) => return None,
+                }
+            }
+        }
+        if let Err(TrySendError::Full(_)) = self.keyframes.try_send(keyframe) {
+            self.dropped += 1;
+            tracing::warn!(
+                dropped = self.dropped,
+                "the back end is behind: keyframe dropped"
+            );
+        }
+        None
+    }
+
+    /// The newest correction the back end has sent, if any (live).
+    fn latest(&self) -> Option<Isometry3<f64>> {
+        self.corrections.try_iter().last()
+    }
+}
+
+fn run_backend(
+    config: &BackEndConfig,
+    input: &Receiver<Keyframe>,
+    output: &Sender<Isometry3<f64>>,
+    heartbeats: &Heartbeats,
+) -> (BackEnd, SlamSummary) {
+    let mut backend = BackEnd::new(config);
+    let mut report = SlamSummary::default();
+    loop {
+        heartbeats.beat(Heartbeats::BACK_END);
+        let keyframe = match input.recv_timeout(IDLE_BEAT) {
+            Ok(k) => k,
+            Err(RecvTimeoutError::Timeout) => continue,
+            Err(RecvTimeoutError::Disconnected) => break,
+        };
+        let mut last = Instant::now();
+        let outcome = backend.add_keyframe(keyframe, |stage| {
+            let now = Instant::now();
+            let ms = (now - last).as_secs_f64() * 1e3;
+            last = now;
+            heartbeats.beat(Heartbeats::BACK_END);
+            match stage {
+                BackEndStage::Descriptor => report.descriptor_ms.push(ms),
+                BackEndStage::Search => report.search_ms.push(ms),
+                BackEndStage::Verify => report.verify_ms.push(ms),
+                BackEndStage::Optimize => report.optimize_ms.push(ms),
+            }
+        });
+        if let Some(l) = &outcome.accepted {
+            tracing::info!(
+                keyframe = l.query,
+                closes_on = l.candidate,
+                similarity = l.similarity,
+                "loop closed"
+            );
+        }
+        if output.send(backend.correction()).is_err() {
+            break;
+        }
+    }
+    report.stats = backend.stats();
+    (backend, report)
+}
+
 fn run_odometry(
     config: &OdometryConfig,
     known: Option<Vec<StampedPose>>,
     map_voxel: Option<f32>,
+    mut backend: Option<BackEndLink>,
     input: &Receiver<Featured>,
     output: &Sender<Estimated>,
     heartbeats: &Heartbeats,
-) -> (Option<WorldMap>, (usize, usize, usize)) {
+) -> (Option<WorldMap>, (usize, usize, usize), u64) {
     let mut odometry = Odometry::new(config);
+    let mut selector = KeyframeSelector::new();
+    let mut map_from_odom = Isometry3::identity();
     let mut world = map_voxel.map(WorldMap::new);
     let mut origin: Option<Isometry3<f64>> = None;
     let mut history = MatchHistory::default();
@@ -857,8 +1017,32 @@ fn run_odometry(
                 }
             }
         }
+        let previous_correction = map_from_odom;
+        if let Some(link) = backend.as_mut() {
+            if estimate.status != TrackingStatus::Lost
+                && selector.is_keyframe(estimate.time_ns, &estimate.pose, &link.config.keyframes)
+            {
+                let keyframe = Keyframe::new(
+                    estimate.time_ns,
+                    estimate.pose,
+                    odometry.deskewed_input(),
+                    odometry.map_points(features, &Isometry3::identity()),
+                    &link.config.keyframes,
+                );
+                if let Some(c) = link.offer(keyframe, heartbeats) {
+                    map_from_odom = c;
+                }
+            }
+            if !link.lockstep {
+                if let Some(c) = link.latest() {
+                    map_from_odom = c;
+                }
+            }
+        }
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
         let message = Estimated {
+            map_from_odom,
+            loop_closed: map_from_odom != previous_correction,
             quality,
             received: featured.received,
             stage_ms: [
@@ -879,14 +1063,20 @@ fn run_odometry(
             break;
         }
     }
-    (world, odometry.map_sizes())
+    let dropped = backend.map_or(0, |l| l.dropped);
+    (world, odometry.map_sizes(), dropped)
 }
 
 /// The publishing end: poses, predictions, status, trajectory files and the report.
 struct Sink {
     base_from_sensor: Isometry3<f64>,
+    /// Written as the poses come (map frame), unless `final_trajectory`.
     trajectory: Option<TrajectoryWriter>,
     kitti: Option<TrajectoryWriter>,
+    odom_trajectory: Option<TrajectoryWriter>,
+    /// With a back end in a replay, `trajectory` and `kitti` hold the final optimised poses,
+    /// written at the end.
+    final_trajectory: bool,
     keep_estimates: bool,
     summary: Summary,
     /// The latest base pose and when its sweep was received.
@@ -913,10 +1103,17 @@ impl Sink {
             .as_deref()
             .map(|p| TrajectoryWriter::create(p, true, None))
             .transpose()?;
+        let odom_trajectory = options
+            .odom_trajectory
+            .as_deref()
+            .map(|p| TrajectoryWriter::create(p, false, options.trajectory_max_bytes))
+            .transpose()?;
         Ok(Self {
             base_from_sensor: options.base_from_sensor,
             trajectory,
             kitti,
+            odom_trajectory,
+            final_trajectory: options.backend.is_some() && options.keep_estimates,
             keep_estimates: options.keep_estimates,
             summary: Summary::default(),
             latest: None,
@@ -970,8 +1167,18 @@ impl Sink {
             flags,
             quality: e.quality,
         };
+        let map_pose = e.map_from_odom * estimate.pose;
+        let map_sample = PoseSample {
+            pose: self.to_base(&map_pose, &estimate.velocity).0,
+            flags: if e.loop_closed {
+                flags.with(StatusFlags::LOOP_CLOSED)
+            } else {
+                flags
+            },
+            ..sample
+        };
         if let Some(b) = bus {
-            if let Err(err) = b.publish(&sample) {
+            if let Err(err) = b.publish(&sample, &map_sample) {
                 tracing::warn!("{err:#}");
             }
         }
@@ -985,12 +1192,21 @@ impl Sink {
             time_ns: estimate.time_ns,
             pose: estimate.pose,
         };
-        for (name, writer) in [
-            ("trajectory", &mut self.trajectory),
-            ("KITTI trajectory", &mut self.kitti),
-        ] {
+        let corrected = StampedPose {
+            time_ns: estimate.time_ns,
+            pose: map_pose,
+        };
+        let streamed: [(&str, &mut Option<TrajectoryWriter>, &StampedPose); 3] = [
+            ("trajectory", &mut self.trajectory, &corrected),
+            ("KITTI trajectory", &mut self.kitti, &corrected),
+            ("odometry trajectory", &mut self.odom_trajectory, &stamped),
+        ];
+        for (name, writer, pose) in streamed {
+            if self.final_trajectory && !name.starts_with("odometry") {
+                continue;
+            }
             if let Some(w) = writer.as_mut() {
-                if let Err(err) = w.write(&stamped) {
+                if let Err(err) = w.write(pose) {
                     // A full disk must not stop the poses: stop writing this file, say so once.
                     tracing::error!("{name} no longer written: {err:#}");
                     self.summary.output_errors.push(format!("{err:#}"));
@@ -1099,7 +1315,11 @@ impl Sink {
                 "pipeline"
             );
         }
-        for writer in [&mut self.trajectory, &mut self.kitti] {
+        for writer in [
+            &mut self.trajectory,
+            &mut self.kitti,
+            &mut self.odom_trajectory,
+        ] {
             if let Some(w) = writer.as_mut() {
                 if let Err(err) = w.flush() {
                     tracing::error!("{err:#}");
@@ -1114,10 +1334,53 @@ impl Sink {
         self.window_latency.clear();
     }
 
-    fn finish(mut self, world: Option<WorldMap>, options: &Options) -> Result<Summary> {
-        for writer in [self.trajectory.take(), self.kitti.take()]
-            .into_iter()
-            .flatten()
+    fn finish(
+        mut self,
+        world: Option<WorldMap>,
+        backend: Option<(BackEnd, SlamSummary)>,
+        options: &Options,
+    ) -> Result<Summary> {
+        let mut world = world;
+        if let Some((backend, mut report)) = backend {
+            if self.keep_estimates {
+                report.trajectory = backend.trajectory(&self.summary.estimates);
+            }
+            if self.final_trajectory {
+                for writer in [self.trajectory.as_mut(), self.kitti.as_mut()]
+                    .into_iter()
+                    .flatten()
+                {
+                    for pose in &report.trajectory {
+                        if let Err(err) = writer.write(pose) {
+                            self.summary.output_errors.push(format!("{err:#}"));
+                            break;
+                        }
+                    }
+                }
+            }
+            // The map from the keyframes at their optimised poses: consistent after loops,
+            // where one grown sweep by sweep from odometry poses would hold both sides of the
+            // drift.
+            if let Some((_, voxel)) = options.map.as_ref() {
+                let mut map = WorldMap::new(*voxel);
+                for (keyframe, pose) in backend.keyframes().iter().zip(backend.keyframe_poses()) {
+                    let pose = pose.cast::<f32>();
+                    for point in &keyframe.cloud {
+                        let p = pose * nalgebra::Point3::from(point.position);
+                        map.insert(&p.coords, point.eta);
+                    }
+                }
+                world = Some(map);
+            }
+            self.summary.slam = Some(report);
+        }
+        for writer in [
+            self.trajectory.take(),
+            self.kitti.take(),
+            self.odom_trajectory.take(),
+        ]
+        .into_iter()
+        .flatten()
         {
             if let Err(err) = writer.finish() {
                 self.summary.output_errors.push(format!("{err:#}"));
@@ -1169,6 +1432,8 @@ mod tests {
             base_from_sensor: m,
             trajectory: None,
             kitti: None,
+            odom_trajectory: None,
+            final_trajectory: false,
             keep_estimates: false,
             summary: Summary::default(),
             latest: None,

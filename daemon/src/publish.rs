@@ -1,7 +1,6 @@
 //! Poses on the bus: the pipeline's base poses turned into the iceoryx2 contract (`glint-ipc`)
-//! and published on `odom`, `map` and `predicted`, with the status. Until the back end corrects
-//! the map frame, the `map` stream carries the odometry pose (REP-105: map = odom before any
-//! correction).
+//! and published on `odom`, `map` and `predicted`, with the status. REP-105: `odom` is smooth
+//! and drifts; `map` is `odom` corrected by the back end, and jumps once per closed loop.
 
 use anyhow::{Context, Result};
 use glint_ipc::{Domain, Frame, Pose, PosePublisher, Status, StatusFlags};
@@ -52,13 +51,13 @@ impl PoseBus {
         })
     }
 
-    /// Publishes one sweep's pose on `odom` and `map`.
-    pub fn publish(&mut self, sample: &PoseSample) -> Result<()> {
-        let mut pose = to_wire(sample, self.sequence, Frame::ODOM);
+    /// Publishes one sweep's pose on `odom` and, corrected by the back end, on `map`.
+    pub fn publish(&mut self, odom: &PoseSample, map: &PoseSample) -> Result<()> {
+        let pose = to_wire(odom, self.sequence, Frame::ODOM);
         self.publisher
             .publish_odom(&pose)
             .context("cannot publish the odom pose")?;
-        pose.frame = Frame::MAP;
+        let pose = to_wire(map, self.sequence, Frame::MAP);
         self.publisher
             .publish_map(&pose)
             .context("cannot publish the map pose")?;

@@ -9,6 +9,7 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::Args;
+use glint_core::backend::config::BackEndConfig;
 use glint_core::config::OdometryConfig;
 use glint_core::metrics::{associate, ate_rmse, relative_errors, WAREHOUSE_LENGTHS};
 use glint_core::trajectory::{parse_tum, StampedPose};
@@ -35,10 +36,13 @@ pub struct ReplayArgs {
     /// Geometry only: no intensity roughness in feature selection, no intensity residual.
     #[arg(long)]
     pub no_intensity: bool,
-    /// Odometry only, no loop closure (the back end is not built yet, so this is the default
-    /// behaviour for now).
+    /// Odometry only: no loop closure. By default the back end runs, and `--trajectory` holds
+    /// every sweep's pose after the last optimisation.
     #[arg(long)]
     pub no_loop: bool,
+    /// Also write the odometry's own poses (TUM), as published on `odom`.
+    #[arg(long)]
+    pub odom_trajectory: Option<PathBuf>,
     /// Ground truth (TUM) to evaluate against.
     #[arg(long)]
     pub groundtruth: Option<PathBuf>,
@@ -101,6 +105,8 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         odometry: config,
         queue: 2,
         base_from_sensor: Isometry3::identity(),
+        backend: (!args.no_loop).then(BackEndConfig::default),
+        odom_trajectory: args.odom_trajectory.clone(),
         publish: (!args.no_publish).then(|| PublishOptions {
             domain: args.domain.clone(),
             predicted_rate_hz: args.predicted_rate,
@@ -182,18 +188,50 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     );
     let (edges, planes, cells) = summary.map_sizes;
     say!("local map: {edges} edge points, {planes} plane points, {cells} intensity cells");
-    if let Some(groundtruth) = &groundtruth {
-        let pairs = associate(&summary.estimates, groundtruth);
-        anyhow::ensure!(
-            pairs.len() >= 2,
-            "fewer than 2 poses fall inside the ground truth's time span"
+    if let Some(slam) = &summary.slam {
+        let st = &slam.stats;
+        say!(
+            "back end: {} keyframes; loops found {}, verified {}, accepted {}, rejected {}",
+            st.keyframes,
+            st.loops_found,
+            st.verified,
+            st.accepted,
+            st.rejected
         );
-        match relative_errors(&pairs, &WAREHOUSE_LENGTHS) {
-            Some(r) => say!("{r}"),
-            None => say!("drift: the run is shorter than 5 m"),
+        say!(
+            "  per keyframe: descriptor median {:.2} ms, candidate search median {:.2} ms (p99 {:.2}); verification median {:.1} ms per candidate ({}); optimisation median {:.1} ms per loop ({})",
+            slam.descriptor_ms.quantile(0.5),
+            slam.search_ms.quantile(0.5),
+            slam.search_ms.quantile(0.99),
+            slam.verify_ms.quantile(0.5),
+            slam.verify_ms.len(),
+            slam.optimize_ms.quantile(0.5),
+            slam.optimize_ms.len()
+        );
+    }
+    if let Some(groundtruth) = &groundtruth {
+        let mut runs = vec![("odometry", &summary.estimates)];
+        if let Some(slam) = &summary.slam {
+            runs.push(("SLAM", &slam.trajectory));
         }
-        if let Some(a) = ate_rmse(&pairs) {
-            say!("{a}");
+        for (name, estimates) in runs {
+            let pairs = associate(estimates, groundtruth);
+            anyhow::ensure!(
+                pairs.len() >= 2,
+                "fewer than 2 poses fall inside the ground truth's time span"
+            );
+            let prefix = if summary.slam.is_some() {
+                format!("{name}: ")
+            } else {
+                String::new()
+            };
+            match relative_errors(&pairs, &WAREHOUSE_LENGTHS) {
+                Some(r) => say!("{prefix}{r}"),
+                None => say!("{prefix}drift: the run is shorter than 5 m"),
+            }
+            if let Some(a) = ate_rmse(&pairs) {
+                say!("{prefix}{a}");
+            }
         }
     }
     for e in &summary.output_errors {

@@ -64,6 +64,8 @@ pub fn run(args: RunArgs) -> Result<()> {
         odometry: config.odometry.clone(),
         queue: config.pipeline.queue_sweeps,
         base_from_sensor: config.mounting.base_from_sensor(),
+        backend: config.pipeline.loop_closure.then(|| config.backend.clone()),
+        odom_trajectory: config.output.odom_trajectory.clone(),
         publish: config.ipc.publish.then(|| PublishOptions {
             domain: config.ipc.domain.clone(),
             predicted_rate_hz: config.ipc.predicted_rate_hz,

@@ -7,7 +7,8 @@ use crate::config::SolverConfig;
 use super::pose_graph::PoseGraphConfig;
 
 /// Step 6: when a sweep becomes a keyframe, and what it keeps.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct KeyframeConfig {
     /// Travelled this far since the last keyframe, m (LIO-SAM's 1 m).
     pub min_distance: f64,
@@ -41,7 +42,8 @@ impl Default for KeyframeConfig {
 }
 
 /// Step 7: the Intensity Scan Context and the candidate search.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct ScanContextConfig {
     /// Sectors (columns) around the sensor: 6° each.
     pub sectors: usize,
@@ -100,7 +102,8 @@ impl Default for ScanContextConfig {
 }
 
 /// Step 8: geometric verification of a candidate.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct VerificationConfig {
     /// Keyframes on each side of the candidate placed into its submap.
     pub submap_neighbours: usize,
@@ -160,7 +163,8 @@ impl Default for VerificationConfig {
 }
 
 /// Step 9: the edges' uncertainty and the optimiser.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct GraphConfig {
     /// 1σ translation error of an odometry edge, m, plus `odometry_sigma_per_metre` per metre
     /// of the edge.
@@ -191,7 +195,8 @@ impl Default for GraphConfig {
 }
 
 /// The whole back end.
-#[derive(Debug, Clone, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct BackEndConfig {
     /// Step 6.
     pub keyframes: KeyframeConfig,

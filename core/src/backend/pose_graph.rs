@@ -43,7 +43,8 @@ pub struct PoseGraph {
 }
 
 /// How the optimiser runs.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct PoseGraphConfig {
     /// Levenberg–Marquardt iterations at most (accepted or not).
     pub max_iterations: usize,
