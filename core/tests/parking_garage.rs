@@ -32,6 +32,9 @@ fn parking_garage_converges_to_the_known_optimum() {
         .optimize(&PoseGraphConfig::default())
         .expect("valid graph");
     eprintln!("parking garage: {report:?}");
+    // Converged, χ² is 1.2387 (16,720 at the start; optimising the result again leaves it
+    // there). 1.5 leaves room for another order of floating-point sums; a stalled solver or a
+    // worse local minimum is far above it.
     assert!(report.initial_chi2 > 1e4 * report.final_chi2, "{report:?}");
     assert!(report.final_chi2 < 1.5, "{report:?}");
 }

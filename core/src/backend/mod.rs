@@ -339,3 +339,45 @@ impl BackEnd {
             .collect()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    fn keyframe(k: usize) -> Keyframe {
+        Keyframe {
+            time_ns: 1_000_000_000 * (k as u64 + 1),
+            odom_pose: Isometry3::new(
+                Vector3::new(k as f64, 0.0, 0.0),
+                Vector3::z() * 0.01 * k as f64,
+            ),
+            edges: Vec::new(),
+            planes: Vec::new(),
+            cloud: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn without_loops_the_map_is_the_odometry() {
+        let mut backend = BackEnd::new(&BackEndConfig::default());
+        let mut stages = Vec::new();
+        for k in 0..30 {
+            let outcome = backend.add_keyframe(keyframe(k), |s| stages.push(s));
+            assert_eq!(outcome.index, k);
+            assert!(outcome.accepted.is_none());
+        }
+        assert_eq!(backend.correction(), Isometry3::identity());
+        assert_eq!(backend.stats().keyframes, 30);
+        assert_eq!(backend.graph().edges.len(), 29);
+        assert_eq!(stages.len(), 60, "descriptor and search per keyframe");
+        // A sweep between keyframes 4 and 5 is corrected through keyframe 4: unchanged here.
+        let sweep = StampedPose {
+            time_ns: 5_500_000_000,
+            pose: Isometry3::new(Vector3::new(4.5, 0.1, 0.0), Vector3::zeros()),
+        };
+        let out = backend.trajectory(&[sweep]);
+        assert_eq!(out[0].time_ns, sweep.time_ns);
+        assert!((out[0].pose.translation.vector - sweep.pose.translation.vector).norm() < 1e-12);
+    }
+}
