@@ -46,7 +46,7 @@ pub struct FeatureConfig {
     pub sectors: usize,
     /// Weight of the geometric roughness σᴳ (LOAM's normalised curvature). Its scale: a 90°
     /// corner seen at the VLP-16's 0.2° step gives ≈ 0.0074; range noise of 1.5 cm on a plane
-    /// gives ≈ 0.0047 / r.
+    /// spreads it by ≈ 0.016 / r (1σ), so nearer than ~2 m noise hides a corner.
     pub geometric_weight: f32,
     /// Weight of the intensity roughness σᴵ (mean |Δη| / 100). A painted edge of 60 units gives
     /// σᴵ ≈ 0.3, so 0.03 ranks it with a geometric corner. Off by default: on the simulated
@@ -61,8 +61,9 @@ pub struct FeatureConfig {
     pub plane_threshold: f32,
     /// Edges kept per sector.
     pub edges_per_sector: usize,
-    /// The sensor's range noise (1σ), m. Noise alone gives σᴳ ≈ √(2k)·σ / (2k·r) at range r:
-    /// an edge must exceed three times that, and a plane may be that rough.
+    /// The sensor's range noise (1σ), m. Noise alone spreads σᴳ by ≈ σ·√((2k + 1)/2k) / r at
+    /// range r: an edge must exceed the threshold by three times that, and a plane may be that
+    /// rough.
     pub range_noise: f32,
     /// Returns nearer than this are the robot or noise.
     pub min_range: f32,
@@ -170,14 +171,28 @@ pub struct SolverConfig {
     pub intensity_weight: f64,
     /// Huber threshold of the weighted intensity residual.
     pub huber_intensity: f64,
+    /// Directions whose information per geometric correspondence is below this (0–1/3, rotations
+    /// counted about the sensor as the displacement at the returns' RMS range) are not moved:
+    /// the pose there stays at the prediction. A step along them would follow the small biases
+    /// of the fitted lines and planes: over a bare floor, inside a sphere of equal ranges, along
+    /// a corridor without intensity.
+    pub hold_information: f64,
     /// Stop when an update moves less than this (rad and m).
     pub convergence: f64,
+    /// Between rounds, a point keeps its correspondence unless the pose moved it more than
+    /// this, m. Map points are ≥ 0.1 m apart, so a centimetre seldom changes a neighbourhood,
+    /// and re-searching every point every round was most of the solver's time.
+    pub reassociation_distance: f64,
     /// Fewer geometric correspondences than this: the sweep is not trusted (lost).
     pub min_correspondences: usize,
     /// The smallest eigenvalue of the plane correspondences' translational information per
     /// correspondence (0–1/3) below which the pose is reported degenerate. Measured on the
     /// simulated runs: corridor 0.002–0.005, warehouse ≥ 0.068, yard ≥ 0.022.
     pub degeneracy_threshold: f64,
+    /// The same for rotation about the sensor (the rotational information per correspondence
+    /// over the mean squared range, 0–1/3): a sweep whose every return lies at one range, a
+    /// sphere about the sensor, leaves rotation unconstrained and reads 0.
+    pub rotational_degeneracy_threshold: f64,
 }
 
 impl Default for SolverConfig {
@@ -193,9 +208,12 @@ impl Default for SolverConfig {
             use_intensity: true,
             intensity_weight: 0.003,
             huber_intensity: 0.1,
+            hold_information: 0.002,
             convergence: 1e-4,
+            reassociation_distance: 0.01,
             min_correspondences: 30,
             degeneracy_threshold: 0.01,
+            rotational_degeneracy_threshold: 0.002,
         }
     }
 }

@@ -24,6 +24,14 @@ pub struct IntensityMap {
     cells: FxHashMap<[i32; 3], Cell>,
 }
 
+/// The eight cells around the last lookup (their means, `None` where unobserved), for
+/// [`IntensityMap::sample_near`].
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Corners {
+    base: Option<[i32; 3]>,
+    means: [Option<f32>; 8],
+}
+
 /// An interpolated lookup: the value and its gradient with respect to the point (per metre).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct IntensitySample {
@@ -79,28 +87,50 @@ impl IntensityMap {
     /// The interpolated reflectivity at `p` and its gradient, if enough of the eight
     /// surrounding cells have been observed.
     pub fn sample(&self, p: &Vector3<f64>) -> Option<IntensitySample> {
+        self.sample_near(p, &mut Corners::default())
+    }
+
+    /// [`Self::sample`], reading the eight cells from `corners` when they are the ones around
+    /// `p` (and filling it otherwise). A solver sampling the same points at poses a few
+    /// millimetres apart finds them there and skips the hashing; the map must not change while
+    /// a `Corners` is in use.
+    pub fn sample_near(&self, p: &Vector3<f64>, corners: &mut Corners) -> Option<IntensitySample> {
         let s = f64::from(self.voxel);
         // Cell centres sit at (i + ½)·s: the lower corner of the bracketing cube is i0.
         let u = p / s - Vector3::repeat(0.5);
         let i0 = u.map(f64::floor);
         let t = u - i0;
         let base = [i0.x as i32, i0.y as i32, i0.z as i32];
+        if corners.base != Some(base) {
+            corners.base = Some(base);
+            for (corner, mean) in corners.means.iter_mut().enumerate() {
+                let (a, b, c) = (
+                    corner as i32 & 1,
+                    (corner as i32 >> 1) & 1,
+                    corner as i32 >> 2,
+                );
+                *mean = self
+                    .cells
+                    .get(&[base[0] + a, base[1] + b, base[2] + c])
+                    .map(|cell| cell.mean);
+            }
+        }
         let mut weight = 0.0;
         let mut value = 0.0;
         let mut d_weight = Vector3::zeros();
         let mut d_value = Vector3::zeros();
-        for corner in 0..8 {
-            let (a, b, c) = (corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
-            let Some(cell) = self.cells.get(&[base[0] + a, base[1] + b, base[2] + c]) else {
+        for (corner, mean) in corners.means.iter().enumerate() {
+            let Some(mean) = mean else {
                 continue;
             };
+            let (a, b, c) = (corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
             // w₀(t) = 1 − t, w₁(t) = t per axis (the paper printed t for both).
-            let w = |bit: i32, t: f64| if bit == 1 { t } else { 1.0 - t };
-            let dw = |bit: i32| if bit == 1 { 1.0 / s } else { -1.0 / s };
+            let w = |bit: usize, t: f64| if bit == 1 { t } else { 1.0 - t };
+            let dw = |bit: usize| if bit == 1 { 1.0 / s } else { -1.0 / s };
             let (wx, wy, wz) = (w(a, t.x), w(b, t.y), w(c, t.z));
             let wk = wx * wy * wz;
             let grad = Vector3::new(dw(a) * wy * wz, wx * dw(b) * wz, wx * wy * dw(c));
-            let m = f64::from(cell.mean);
+            let m = f64::from(*mean);
             weight += wk;
             value += wk * m;
             d_weight += grad;

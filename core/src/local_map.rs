@@ -3,6 +3,12 @@
 //! stays a thinned sample of the surface; cells beyond a radius are dropped, so memory stays flat
 //! on an endless run. Nearest neighbours come from the 27 cells around the query, which bounds
 //! the search radius by one cell.
+//!
+//! The cells' points live in one flat array, `points_per_cell` slots a cell, so a search reads
+//! contiguous memory instead of chasing a heap allocation per cell; the hash only maps a cell's
+//! key to its slot. A search skips every one of the 27 cells whose box is farther than the
+//! current k-th neighbour: the answer is the exact k nearest, and a query in the middle of a
+//! surface reads two or three cells instead of nine.
 
 use nalgebra::Vector3;
 use rustc_hash::FxHashMap;
@@ -18,7 +24,12 @@ pub struct LocalMap {
     cell: f32,
     per_cell: usize,
     min_spacing_sq: f32,
-    cells: FxHashMap<[i32; 3], Vec<Vector3<f32>>>,
+    /// Cell key → slot.
+    index: FxHashMap<[i32; 3], u32>,
+    /// Per slot: its cell's key and how many of its `per_cell` points are used.
+    slots: Vec<([i32; 3], u32)>,
+    /// `per_cell` points per slot.
+    storage: Vec<Vector3<f32>>,
     points: usize,
 }
 
@@ -29,7 +40,9 @@ impl LocalMap {
             cell: config.cell,
             per_cell: config.points_per_cell.max(1),
             min_spacing_sq: config.min_spacing * config.min_spacing,
-            cells: FxHashMap::default(),
+            index: FxHashMap::default(),
+            slots: Vec::new(),
+            storage: Vec::new(),
             points: 0,
         }
     }
@@ -52,21 +65,40 @@ impl LocalMap {
         ]
     }
 
+    /// The points of slot `slot`.
+    fn slot_points(&self, slot: usize) -> &[Vector3<f32>] {
+        let start = slot * self.per_cell;
+        &self.storage[start..start + self.slots[slot].1 as usize]
+    }
+
     /// Adds a world point unless its cell is full or it is too close to a point already there.
     pub fn insert(&mut self, p: Vector3<f32>) {
         if !p.iter().all(|v| v.is_finite()) {
             return;
         }
         let key = self.key(&p);
-        let (per_cell, min_sq) = (self.per_cell, self.min_spacing_sq);
-        let cell = self
-            .cells
-            .entry(key)
-            .or_insert_with(|| Vec::with_capacity(per_cell));
-        if cell.len() >= per_cell || cell.iter().any(|q| (q - p).norm_squared() < min_sq) {
+        let slot = match self.index.get(&key) {
+            Some(&slot) => slot as usize,
+            None => {
+                let slot = self.slots.len();
+                self.index.insert(key, slot as u32);
+                self.slots.push((key, 0));
+                self.storage
+                    .resize(self.storage.len() + self.per_cell, Vector3::zeros());
+                slot
+            }
+        };
+        let used = self.slots[slot].1 as usize;
+        if used >= self.per_cell
+            || self
+                .slot_points(slot)
+                .iter()
+                .any(|q| (q - p).norm_squared() < self.min_spacing_sq)
+        {
             return;
         }
-        cell.push(p);
+        self.storage[slot * self.per_cell + used] = p;
+        self.slots[slot].1 += 1;
         self.points += 1;
     }
 
@@ -86,13 +118,32 @@ impl LocalMap {
         let mut best = [(f32::INFINITY, Vector3::zeros()); MAX_NEIGHBOURS];
         let mut found = 0;
         let c = self.key(p);
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let Some(cell) = self.cells.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
+        // The query's offset inside its cell gives each neighbouring cell's box distance per
+        // axis: none for the same layer, the offset below, the remainder above. Layers go in
+        // order of distance per axis (own, nearer side, farther side), so the first cells read
+        // are the nearest and the bound tightens early.
+        let layers = |v: f32, k: i32| {
+            let below = v - k as f32 * self.cell;
+            let above = self.cell - below;
+            let (below, above) = (below * below, above * above);
+            if below <= above {
+                [(0, 0.0), (-1, below), (1, above)]
+            } else {
+                [(0, 0.0), (1, above), (-1, below)]
+            }
+        };
+        let (lx, ly, lz) = (layers(p.x, c[0]), layers(p.y, c[1]), layers(p.z, c[2]));
+        for &(dx, bx) in &lx {
+            for &(dy, by) in &ly {
+                for &(dz, bz) in &lz {
+                    let box_sq = bx + by + bz;
+                    if box_sq > max_sq || (found == k && box_sq >= best[k - 1].0) {
+                        continue;
+                    }
+                    let Some(&slot) = self.index.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
                         continue;
                     };
-                    for q in cell {
+                    for q in self.slot_points(slot as usize) {
                         let d = (q - p).norm_squared();
                         if d > max_sq || (found == k && d >= best[k - 1].0) {
                             continue;
@@ -112,20 +163,32 @@ impl LocalMap {
         out.extend(best[..found].iter().map(|(_, q)| *q));
     }
 
-    /// Drops cells farther than `radius` from `center` (per axis).
+    /// Drops cells farther than `radius` from `center` (per axis). The kept cells keep their
+    /// order, so the map's content never depends on hash order.
     pub fn retain_near(&mut self, center: &Vector3<f32>, radius: f32) {
         let c = self.key(center);
         let r = (radius / self.cell).ceil() as i32;
-        let mut removed = 0;
-        self.cells.retain(|k, v| {
+        let per = self.per_cell;
+        let mut kept = 0;
+        for slot in 0..self.slots.len() {
+            let (k, used) = self.slots[slot];
             let keep =
                 (k[0] - c[0]).abs() <= r && (k[1] - c[1]).abs() <= r && (k[2] - c[2]).abs() <= r;
             if !keep {
-                removed += v.len();
+                self.index.remove(&k);
+                self.points -= used as usize;
+                continue;
             }
-            keep
-        });
-        self.points -= removed;
+            if kept != slot {
+                self.slots[kept] = (k, used);
+                self.storage
+                    .copy_within(slot * per..(slot + 1) * per, kept * per);
+                self.index.insert(k, kept as u32);
+            }
+            kept += 1;
+        }
+        self.slots.truncate(kept);
+        self.storage.truncate(kept * per);
     }
 }
 
@@ -164,6 +227,53 @@ mod tests {
                 "{q}"
             );
         }
+    }
+
+    #[test]
+    fn pruned_search_equals_brute_force() {
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut m = LocalMap::new(&LocalMapConfig {
+            min_spacing: 0.0,
+            ..config()
+        });
+        let mut all = Vec::new();
+        for _ in 0..3000 {
+            let p = Vector3::new(next() * 6.0 - 3.0, next() * 6.0 - 3.0, next() * 2.0);
+            m.insert(p);
+            all.push(p);
+        }
+        // Keep only what the map stored (cells cap their points).
+        let mut stored = Vec::new();
+        for slot in 0..m.slots.len() {
+            stored.extend_from_slice(m.slot_points(slot));
+        }
+        assert_eq!(stored.len(), m.len());
+        let mut out = Vec::new();
+        for _ in 0..200 {
+            let q = Vector3::new(next() * 6.0 - 3.0, next() * 6.0 - 3.0, next() * 2.0);
+            m.nearest(&q, 5, 0.9, &mut out);
+            let mut brute: Vec<f32> = stored
+                .iter()
+                .map(|p| (p - q).norm_squared())
+                .filter(|d| *d <= 0.81)
+                .collect();
+            brute.sort_by(f32::total_cmp);
+            brute.truncate(5);
+            let got: Vec<f32> = out.iter().map(|p| (p - q).norm_squared()).collect();
+            assert_eq!(got, brute, "query {q}");
+        }
+        // Eviction keeps the remaining cells searchable.
+        m.retain_near(&Vector3::new(-3.0, -3.0, 0.0), 2.0);
+        let kept: usize = (0..m.slots.len()).map(|s| m.slot_points(s).len()).sum();
+        assert_eq!(kept, m.len());
+        m.nearest(&Vector3::new(-2.5, -2.5, 0.5), 3, 0.9, &mut out);
+        assert_eq!(out.len(), 3);
     }
 
     #[test]

@@ -12,7 +12,7 @@
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
 
 use crate::config::SolverConfig;
-use crate::intensity_map::IntensityMap;
+use crate::intensity_map::{Corners, IntensityMap};
 use crate::local_map::LocalMap;
 use crate::se3::{exp, skew};
 
@@ -66,7 +66,12 @@ pub struct Alignment {
     pub degeneracy: f64,
     /// The direction (world frame) geometry constrains least.
     pub weakest_direction: Vector3<f64>,
-    /// Whether `degeneracy` is below the configured threshold.
+    /// The same for rotation about the sensor: the smallest eigenvalue of the plane
+    /// correspondences' rotational information, divided by their mean squared range, in
+    /// [0, 1/3] (near 0: some rotation moves no point off its plane, as on a sphere centred on
+    /// the sensor).
+    pub rotational_degeneracy: f64,
+    /// Whether `degeneracy` or `rotational_degeneracy` is below its configured threshold.
     pub degenerate: bool,
     /// Levenberg–Marquardt steps taken.
     pub iterations: usize,
@@ -80,7 +85,16 @@ pub struct Alignment {
 struct Model {
     point: Vector3<f64>,
     center: Vector3<f64>,
-    projection: Matrix3<f64>,
+    shape: Shape,
+}
+
+/// What a neighbourhood was fitted as.
+#[derive(Debug, Clone, Copy)]
+enum Shape {
+    /// A line with this unit direction: `P = I − d·dᵀ`.
+    Line(Vector3<f64>),
+    /// A plane with this unit normal: `P = n·nᵀ`, a scalar residual `n·(T·p − c)`.
+    Plane(Vector3<f64>),
 }
 
 /// Aligns `input` to `maps` starting from `initial`.
@@ -92,50 +106,70 @@ pub fn align(
 ) -> Alignment {
     let mut pose = *initial;
     let mut models = Vec::with_capacity(input.edges.len() + input.planes.len());
+    let mut edge_links = Links::default();
+    let mut plane_links = Links::default();
     let mut neighbours = Vec::with_capacity(8);
+    // The map does not change during an alignment: each intensity point's cells are kept.
+    let mut corners = Vec::new();
     let mut lambda = 1e-4;
     let mut iterations = 0;
     let mut edges = 0;
     let mut planes = 0;
     for _ in 0..config.outer_iterations.max(1) {
         let round_start = pose;
-        models.clear();
         let line = |_: &_, values: &_, vectors: &_, _: &_| line_model(config, values, vectors);
         let plane =
             |center: &_, _: &_, vectors: &_, near: &_| plane_model(config, center, vectors, near);
-        edges = associate(
+        edge_links.update(
             &pose,
             &input.edges,
             maps.edges,
             config,
             &mut neighbours,
-            &mut models,
             line,
         );
-        planes = associate(
+        plane_links.update(
             &pose,
             &input.planes,
             maps.planes,
             config,
             &mut neighbours,
-            &mut models,
             plane,
         );
+        models.clear();
+        edges = edge_links.collect(&mut models);
+        planes = plane_links.collect(&mut models);
         let mut converged = false;
-        let mut system = build(&pose, &models, input, maps.intensity, config);
+        let mut system = build(&pose, &models, input, maps.intensity, config, &mut corners);
         for _ in 0..config.inner_iterations.max(1) {
             if system.count == 0 {
                 break;
             }
-            let eigen = SymmetricEigen::new(system.hessian);
+            let frame = Balanced::new(&system, &pose);
+            let hessian = frame.hessian(&system);
+            let gradient = frame.gradient(&system);
+            let eigen = SymmetricEigen::new(hessian);
             let largest = eigen.eigenvalues.max().max(1e-12);
             // Levenberg–Marquardt: retry with more damping until the cost drops. An accepted
             // trial's system is the next step's, so each trial costs one evaluation.
             let mut accepted = false;
             for _ in 0..6 {
-                let step = damped_step(&eigen, &system.gradient, lambda, largest);
+                let step = frame.to_perturbation(&damped_step(
+                    &eigen,
+                    &gradient,
+                    lambda,
+                    largest.max(1e-12) * NULL_INFORMATION,
+                    config.hold_information,
+                ));
                 let candidate = exp(&step) * pose;
-                let trial = build(&candidate, &models, input, maps.intensity, config);
+                let trial = build(
+                    &candidate,
+                    &models,
+                    input,
+                    maps.intensity,
+                    config,
+                    &mut corners,
+                );
                 iterations += 1;
                 if trial.cost <= system.cost {
                     pose = candidate;
@@ -156,7 +190,7 @@ pub fn align(
             break;
         }
     }
-    let system = build(&pose, &models, input, maps.intensity, config);
+    let system = build(&pose, &models, input, maps.intensity, config, &mut corners);
     let translational = system.geometric_translation / system.planes.max(1) as f64;
     let eigen = SymmetricEigen::new(translational);
     let (weakest, degeneracy) = eigen
@@ -166,6 +200,14 @@ pub fn align(
         .min_by(|a, b| a.1.total_cmp(b.1))
         .map(|(i, &v)| (eigen.eigenvectors.column(i).into_owned(), v.max(0.0)))
         .unwrap_or((Vector3::x(), 0.0));
+    let rotational_degeneracy = if system.squared_ranges > 0.0 {
+        SymmetricEigen::new(system.geometric_rotation / system.squared_ranges)
+            .eigenvalues
+            .min()
+            .max(0.0)
+    } else {
+        0.0
+    };
     Alignment {
         pose,
         edges,
@@ -173,26 +215,31 @@ pub fn align(
         intensity: system.intensity,
         degeneracy,
         weakest_direction: weakest,
-        degenerate: degeneracy < config.degeneracy_threshold,
+        rotational_degeneracy,
+        degenerate: degeneracy < config.degeneracy_threshold
+            || rotational_degeneracy < config.rotational_degeneracy_threshold,
         iterations,
         cost: system.cost / system.count.max(1) as f64,
     }
 }
 
-/// The Levenberg–Marquardt step in the Hessian's eigenbasis. Directions whose information is a
-/// negligible fraction of the largest carry no measurement (a corridor's axis without intensity,
-/// height between walls): they get no step, so the pose there stays at the prediction instead
-/// of following numerical noise.
+/// The Levenberg–Marquardt step in the eigenbasis of the balanced normal equations (see
+/// [`Balanced`]). Directions with less information per correspondence than `hold` (or than
+/// `null`, numerically none) carry no usable measurement — a corridor's axis without intensity,
+/// rotation inside a sphere of returns, anything but height and tilt over a bare floor — so a
+/// step there would follow the fit's small biases, not the motion: they get none, and the pose
+/// there stays at the prediction.
 fn damped_step(
     eigen: &SymmetricEigen<f64, nalgebra::U6>,
     gradient: &Vector6<f64>,
     lambda: f64,
-    largest: f64,
+    null: f64,
+    hold: f64,
 ) -> Vector6<f64> {
     let mut step = Vector6::zeros();
     for i in 0..6 {
         let value = eigen.eigenvalues[i];
-        if value <= NULL_INFORMATION * largest {
+        if value <= null.max(hold) {
             continue;
         }
         let v = eigen.eigenvectors.column(i);
@@ -201,44 +248,131 @@ fn damped_step(
     step
 }
 
+/// Coordinates in which the normal equations' directions compare: the solver's perturbation
+/// rotates about the world origin, so rotations are re-expressed about the sensor and scaled by
+/// the correspondences' RMS range (a rotation then reads as the displacement it causes), and
+/// the information is divided by the number of geometric correspondences (1/3 per direction
+/// for normals spread evenly; the degeneracy measures' scale).
+struct Balanced {
+    /// δ = A·y: y's rotation part is ρ·ω about the sensor, its translation part the sensor's.
+    to_perturbation: Matrix6<f64>,
+    per_correspondence: f64,
+}
+
+impl Balanced {
+    fn new(system: &System, pose: &Isometry3<f64>) -> Self {
+        let rms_range = if system.planes > 0 {
+            (system.squared_ranges / system.planes as f64)
+                .sqrt()
+                .max(1e-3)
+        } else {
+            1.0
+        };
+        // A rotation ω about the sensor at t, then a translation υₛ: q' = q + ω × (q − t) + υₛ,
+        // which the origin-centred perturbation writes as [ω, υₛ + t × ω].
+        let mut a = Matrix6::identity();
+        a.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&(Matrix3::identity() / rms_range));
+        a.fixed_view_mut::<3, 3>(3, 0)
+            .copy_from(&(skew(&pose.translation.vector) / rms_range));
+        Self {
+            to_perturbation: a,
+            per_correspondence: 1.0 / (system.count - system.intensity).max(1) as f64,
+        }
+    }
+
+    fn hessian(&self, system: &System) -> Matrix6<f64> {
+        self.to_perturbation.transpose()
+            * system.hessian
+            * self.to_perturbation
+            * self.per_correspondence
+    }
+
+    fn gradient(&self, system: &System) -> Vector6<f64> {
+        self.to_perturbation.transpose() * system.gradient * self.per_correspondence
+    }
+
+    fn to_perturbation(&self, step: &Vector6<f64>) -> Vector6<f64> {
+        self.to_perturbation * step
+    }
+}
+
 /// Information below this fraction of the strongest direction's is treated as none.
 const NULL_INFORMATION: f64 = 1e-6;
 
-/// For each point, fits a model to its nearest map neighbours at the current pose: `fit` turns
-/// the neighbourhood (centroid, eigenvalues ascending, eigenvectors, the neighbours) into the
-/// residual's projection, or rejects it. Returns how many points got a model.
+/// Each point's correspondence and where (world frame) it was made. A point that has moved less
+/// than [`SolverConfig::reassociation_distance`] since keeps it: its nearest neighbours, 0.1 m
+/// or more apart in the map, would be the same, and the search is most of the solver's time.
+#[derive(Debug, Default)]
+struct Links {
+    at: Vec<Vector3<f64>>,
+    models: Vec<Option<Model>>,
+}
+
+impl Links {
+    /// For each point that moved enough (all of them the first time), fits a model to its nearest
+    /// map neighbours at `pose`: `fit` turns the neighbourhood (centroid, eigenvalues ascending,
+    /// eigenvectors, the neighbours) into the residual's projection, or rejects it.
+    fn update(
+        &mut self,
+        pose: &Isometry3<f64>,
+        points: &[Vector3<f64>],
+        map: &LocalMap,
+        config: &SolverConfig,
+        neighbours: &mut Vec<Vector3<f32>>,
+        fit: impl Fn(&Vector3<f64>, &[f64; 3], &[Vector3<f64>; 3], &[Vector3<f32>]) -> Option<Shape>,
+    ) {
+        let fresh = self.at.len() != points.len();
+        if fresh {
+            self.at.clear();
+            self.at.resize(points.len(), Vector3::zeros());
+            self.models.clear();
+            self.models.resize(points.len(), None);
+        }
+        let limit_sq = config.reassociation_distance.powi(2);
+        for (i, p) in points.iter().enumerate() {
+            let q = (pose * Point3::from(*p)).coords;
+            if !fresh && (q - self.at[i]).norm_squared() <= limit_sq {
+                continue;
+            }
+            self.at[i] = q;
+            self.models[i] = associate(p, &q, map, config, neighbours, &fit);
+        }
+    }
+
+    /// Appends the current models to `models`; returns how many there are.
+    fn collect(&self, models: &mut Vec<Model>) -> usize {
+        let before = models.len();
+        models.extend(self.models.iter().flatten());
+        models.len() - before
+    }
+}
+
+/// Fits a model for the point `p` (sensor frame), seen at `q` (world), to its nearest map
+/// neighbours.
 fn associate(
-    pose: &Isometry3<f64>,
-    points: &[Vector3<f64>],
+    p: &Vector3<f64>,
+    q: &Vector3<f64>,
     map: &LocalMap,
     config: &SolverConfig,
     neighbours: &mut Vec<Vector3<f32>>,
-    models: &mut Vec<Model>,
-    fit: impl Fn(&Vector3<f64>, &[f64; 3], &[Vector3<f64>; 3], &[Vector3<f32>]) -> Option<Matrix3<f64>>,
-) -> usize {
-    let mut count = 0;
-    for p in points {
-        let q = pose * Point3::from(*p);
-        map.nearest(
-            &q.coords.cast(),
-            config.neighbours,
-            config.max_neighbour_distance,
-            neighbours,
-        );
-        if neighbours.len() < config.neighbours {
-            continue;
-        }
-        let (center, values, vectors) = covariance(neighbours);
-        if let Some(projection) = fit(&center, &values, &vectors, neighbours) {
-            models.push(Model {
-                point: *p,
-                center,
-                projection,
-            });
-            count += 1;
-        }
+    fit: &impl Fn(&Vector3<f64>, &[f64; 3], &[Vector3<f64>; 3], &[Vector3<f32>]) -> Option<Shape>,
+) -> Option<Model> {
+    map.nearest(
+        &q.cast(),
+        config.neighbours,
+        config.max_neighbour_distance,
+        neighbours,
+    );
+    if neighbours.len() < config.neighbours {
+        return None;
     }
-    count
+    let (center, values, vectors) = covariance(neighbours);
+    fit(&center, &values, &vectors, neighbours).map(|shape| Model {
+        point: *p,
+        center,
+        shape,
+    })
 }
 
 /// Lines: the neighbours must spread along one direction (largest eigenvalue dominant); the
@@ -247,9 +381,8 @@ fn line_model(
     config: &SolverConfig,
     values: &[f64; 3],
     vectors: &[Vector3<f64>; 3],
-) -> Option<Matrix3<f64>> {
-    (values[2] >= config.line_ratio * values[1])
-        .then(|| Matrix3::identity() - vectors[2] * vectors[2].transpose())
+) -> Option<Shape> {
+    (values[2] >= config.line_ratio * values[1]).then_some(Shape::Line(vectors[2]))
 }
 
 /// Planes: every neighbour within the tolerance of the plane through them; the residual is the
@@ -259,11 +392,11 @@ fn plane_model(
     center: &Vector3<f64>,
     vectors: &[Vector3<f64>; 3],
     near: &[Vector3<f32>],
-) -> Option<Matrix3<f64>> {
+) -> Option<Shape> {
     let normal = vectors[0];
     near.iter()
         .all(|n| (n.cast::<f64>() - center).dot(&normal).abs() <= config.plane_tolerance)
-        .then(|| normal * normal.transpose())
+        .then_some(Shape::Plane(normal))
 }
 
 /// Centroid, eigenvalues (ascending) and unit eigenvectors of the covariance of `points`.
@@ -346,6 +479,8 @@ struct System {
     count: usize,
     intensity: usize,
     geometric_translation: Matrix3<f64>,
+    geometric_rotation: Matrix3<f64>,
+    squared_ranges: f64,
     planes: usize,
 }
 
@@ -365,6 +500,7 @@ fn build(
     input: &AlignmentInput,
     intensity: &IntensityMap,
     config: &SolverConfig,
+    corners: &mut Vec<Corners>,
 ) -> System {
     let mut s = System {
         hessian: Matrix6::zeros(),
@@ -373,34 +509,56 @@ fn build(
         count: 0,
         intensity: 0,
         geometric_translation: Matrix3::zeros(),
+        geometric_rotation: Matrix3::zeros(),
+        squared_ranges: 0.0,
         planes: 0,
     };
     for m in models {
         let q = (pose * Point3::from(m.point)).coords;
-        let e = m.projection * (q - m.center);
-        let (w, cost) = huber(e.norm(), config.huber_geometric);
-        // ∂q/∂δ = [−[q]×, I]; ∂e/∂δ = P·[−[q]×, I].
-        let j_rot = -m.projection * skew(&q);
-        let mut j = nalgebra::Matrix3x6::zeros();
-        j.fixed_view_mut::<3, 3>(0, 0).copy_from(&j_rot);
-        j.fixed_view_mut::<3, 3>(0, 3).copy_from(&m.projection);
-        s.hessian += w * j.transpose() * j;
-        s.gradient += w * j.transpose() * e;
-        // The degeneracy measure reads planes only: their normals are well determined, while an
-        // edge line fitted through a few noisy map points can point anywhere and would count as
-        // information along a corridor's axis.
-        if m.projection.trace() < 1.5 {
-            s.geometric_translation += m.projection;
-            s.planes += 1;
+        match m.shape {
+            Shape::Plane(n) => {
+                let e = n.dot(&(q - m.center));
+                let (w, cost) = huber(e.abs(), config.huber_geometric);
+                // ∂q/∂δ = [−[q]×, I], so ∂e/∂δ = nᵀ·[−[q]×, I] = [(q × n)ᵀ, nᵀ].
+                let arm = q.cross(&n);
+                let j = Vector6::new(arm.x, arm.y, arm.z, n.x, n.y, n.z);
+                s.hessian += w * j * j.transpose();
+                s.gradient += w * e * j;
+                s.cost += cost;
+                // The degeneracy measure reads planes only: their normals are well determined,
+                // while an edge line fitted through a few noisy map points can point anywhere
+                // and would count as information along a corridor's axis.
+                let projection = n * n.transpose();
+                s.geometric_translation += projection;
+                // Rotation about the sensor moves a point at r from it by δθ × r.
+                let r = q - pose.translation.vector;
+                let lever = r.cross(&n);
+                s.geometric_rotation += lever * lever.transpose();
+                s.squared_ranges += r.norm_squared();
+                s.planes += 1;
+            }
+            Shape::Line(d) => {
+                let projection = Matrix3::identity() - d * d.transpose();
+                let e = projection * (q - m.center);
+                let (w, cost) = huber(e.norm(), config.huber_geometric);
+                // ∂q/∂δ = [−[q]×, I]; ∂e/∂δ = P·[−[q]×, I].
+                let j_rot = -projection * skew(&q);
+                let mut j = nalgebra::Matrix3x6::zeros();
+                j.fixed_view_mut::<3, 3>(0, 0).copy_from(&j_rot);
+                j.fixed_view_mut::<3, 3>(0, 3).copy_from(&projection);
+                s.hessian += w * j.transpose() * j;
+                s.gradient += w * j.transpose() * e;
+                s.cost += cost;
+            }
         }
-        s.cost += cost;
         s.count += 1;
     }
     if config.use_intensity {
         let weight = config.intensity_weight;
-        for ip in &input.intensity {
+        corners.resize(input.intensity.len(), Corners::default());
+        for (ip, corner) in input.intensity.iter().zip(corners.iter_mut()) {
             let q = (pose * Point3::from(ip.point)).coords;
-            let Some(sample) = intensity.sample(&q) else {
+            let Some(sample) = intensity.sample_near(&q, corner) else {
                 continue;
             };
             let r = weight * (ip.eta - sample.value);
@@ -667,7 +825,7 @@ mod tests {
 #[cfg(test)]
 mod jacobian_tests {
     use super::*;
-    use crate::config::{IntensityMapConfig, LocalMapConfig};
+    use crate::config::IntensityMapConfig;
     use crate::se3::exp;
 
     /// The intensity residual's analytic gradient of the cost equals the finite-difference one,
@@ -719,52 +877,53 @@ mod jacobian_tests {
             intensity_weight: 0.01,
             ..SolverConfig::default()
         };
-        let system = build(&pose, &[], &input, &map, &config);
+        let cost = |pose: &Isometry3<f64>| build(pose, &[], &input, &map, &config, &mut Vec::new());
+        assert_gradient_matches(cost, &pose, 1e-3);
+    }
+
+    /// `cost`'s gradient at `pose` equals central finite differences along each axis of the
+    /// perturbation, to `tolerance` relative.
+    fn assert_gradient_matches(
+        cost: impl Fn(&Isometry3<f64>) -> System,
+        pose: &Isometry3<f64>,
+        tolerance: f64,
+    ) {
+        let system = cost(pose);
         for axis in 0..6 {
             let mut d = Vector6::zeros();
             d[axis] = 1e-6;
-            let plus = build(&(exp(&d) * pose), &[], &input, &map, &config).cost;
-            let minus = build(&(exp(&-d) * pose), &[], &input, &map, &config).cost;
+            let plus = cost(&(exp(&d) * pose)).cost;
+            let minus = cost(&(exp(&-d) * pose)).cost;
             let fd = (plus - minus) / 2e-6;
             assert!(
-                (fd - system.gradient[axis]).abs() < 1e-3 * (1.0 + fd.abs()),
+                (fd - system.gradient[axis]).abs() < tolerance * (1.0 + fd.abs()),
                 "axis {axis}: fd {fd} vs {}",
                 system.gradient[axis]
             );
         }
     }
 
+    /// Both geometric residuals' analytic gradients equal the finite-difference ones.
     #[test]
     fn geometric_gradient_matches_finite_differences() {
-        let model = Model {
-            point: Vector3::new(1.0, 2.0, 0.5),
-            center: Vector3::new(0.8, 2.5, 0.4),
-            projection: {
-                let n = Vector3::new(0.3, -0.5, 0.8).normalize();
-                n * n.transpose()
-            },
-        };
-        let edges = LocalMap::new(&LocalMapConfig::default());
-        let _ = edges;
-        let map = IntensityMap::new(&IntensityMapConfig::default());
-        let input = AlignmentInput::default();
-        let config = SolverConfig {
-            huber_geometric: 1e9,
-            ..SolverConfig::default()
-        };
-        let pose = exp(&Vector6::new(0.1, 0.2, -0.3, 0.5, 0.1, -0.2));
-        let system = build(&pose, &[model], &input, &map, &config);
-        for axis in 0..6 {
-            let mut d = Vector6::zeros();
-            d[axis] = 1e-6;
-            let plus = build(&(exp(&d) * pose), &[model], &input, &map, &config).cost;
-            let minus = build(&(exp(&-d) * pose), &[model], &input, &map, &config).cost;
-            let fd = (plus - minus) / 2e-6;
-            assert!(
-                (fd - system.gradient[axis]).abs() < 1e-6 * (1.0 + fd.abs()),
-                "axis {axis}: fd {fd} vs {}",
-                system.gradient[axis]
-            );
+        let direction = Vector3::new(0.3, -0.5, 0.8).normalize();
+        for shape in [Shape::Plane(direction), Shape::Line(direction)] {
+            let model = Model {
+                point: Vector3::new(1.0, 2.0, 0.5),
+                center: Vector3::new(0.8, 2.5, 0.4),
+                shape,
+            };
+            let map = IntensityMap::new(&IntensityMapConfig::default());
+            let input = AlignmentInput::default();
+            let config = SolverConfig {
+                huber_geometric: 1e9,
+                ..SolverConfig::default()
+            };
+            let cost = |pose: &Isometry3<f64>| {
+                build(pose, &[model], &input, &map, &config, &mut Vec::new())
+            };
+            let pose = exp(&Vector6::new(0.1, 0.2, -0.3, 0.5, 0.1, -0.2));
+            assert_gradient_matches(cost, &pose, 1e-6);
         }
     }
 }
