@@ -9,9 +9,10 @@
 //! dropped whole and counted, and the stages behind it wait on each other. In a replay the reader
 //! waits instead, so every sweep is processed in capture order and the outputs depend on the data
 //! alone: the same capture and configuration give byte-identical trajectory files at any pace.
-//! For that, a replay also runs the back end in lockstep: the odometry waits for its answer at
-//! each keyframe, so a correction applies from a sweep fixed by the data. Live, the odometry never
-//! waits for the back end; a correction applies from whichever sweep follows its arrival.
+//! For that, a replay also runs the back end in lockstep: the odometry takes the answer to each
+//! keyframe when it hands over the next one (waiting if need be), so a correction applies from a
+//! sweep fixed by the data. Live, the odometry never waits for the back end; a correction applies
+//! from whichever sweep follows its arrival.
 //!
 //! The publishing thread owns the iceoryx2 ports (they are not `Send`), so it also runs the
 //! predicted stream's and the status report's timers. Each stage beats a heartbeat while it works
@@ -489,6 +490,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
                 keyframes: keyframe_tx,
                 corrections: reply_rx,
                 lockstep: matches!(options.input, Input::Capture { .. }),
+                pending: false,
                 dropped: 0,
             };
             let heartbeats = heartbeats.clone();
@@ -838,23 +840,36 @@ struct BackEndLink {
     config: BackEndConfig,
     keyframes: Sender<Keyframe>,
     corrections: Receiver<Isometry3<f64>>,
-    /// Wait for the back end's answer at every keyframe (replays).
+    /// Replays: each keyframe's answer is awaited when the next keyframe is handed over, so a
+    /// correction applies from a sweep fixed by the data while the back end works in parallel
+    /// with the odometry for a keyframe interval (about 1 m of travel).
     lockstep: bool,
+    /// A keyframe was handed over and its answer not yet taken (lockstep).
+    pending: bool,
     dropped: u64,
 }
 
 impl BackEndLink {
-    /// Hands a keyframe over; in lockstep, waits for the correction it leads to.
+    /// Hands a keyframe over. In lockstep, first waits for the previous keyframe's answer and
+    /// returns it.
     fn offer(&mut self, keyframe: Keyframe, heartbeats: &Heartbeats) -> Option<Isometry3<f64>> {
         if self.lockstep {
-            send_beating(&self.keyframes, keyframe, heartbeats, Heartbeats::ODOMETRY).ok()?;
-            loop {
-                match self.corrections.recv_timeout(IDLE_BEAT) {
-                    Ok(c) => return Some(c),
-                    Err(RecvTimeoutError::Timeout) => heartbeats.beat(Heartbeats::ODOMETRY),
-                    Err(RecvTimeoutError::Disconnected) => return None,
+            let mut answer = None;
+            if self.pending {
+                loop {
+                    match self.corrections.recv_timeout(IDLE_BEAT) {
+                        Ok(c) => {
+                            answer = Some(c);
+                            break;
+                        }
+                        Err(RecvTimeoutError::Timeout) => heartbeats.beat(Heartbeats::ODOMETRY),
+                        Err(RecvTimeoutError::Disconnected) => return None,
+                    }
                 }
             }
+            self.pending =
+                send_beating(&self.keyframes, keyframe, heartbeats, Heartbeats::ODOMETRY).is_ok();
+            return answer;
         }
         if let Err(TrySendError::Full(_)) = self.keyframes.try_send(keyframe) {
             self.dropped += 1;

@@ -94,9 +94,13 @@ pub fn run(args: RunArgs) -> Result<()> {
     });
     let _ = sd_notify::notify(false, &[NotifyState::Stopping]);
     let summary = summary?;
+    let latency = &summary.timings.latency;
     tracing::info!(
         sweeps = summary.statuses.iter().sum::<u64>(),
         dropped = summary.sweeps_dropped,
+        latency_median_ms = format_args!("{:.1}", latency.quantile(0.5)),
+        latency_p99_ms = format_args!("{:.1}", latency.quantile(0.99)),
+        loops_accepted = summary.slam.as_ref().map_or(0, |s| s.stats.accepted),
         "stopped"
     );
     anyhow::ensure!(
