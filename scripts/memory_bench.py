@@ -5,7 +5,8 @@
     python3 scripts/memory_bench.py --glintd target/release/glintd --long 300
 
 Simulates a warehouse run of --short and of --long seconds (same seed), replays each through
-`glintd replay CAPTURE --trajectory OUT.tum --no-publish` (add --map to also build the whole
+`glintd replay CAPTURE --trajectory OUT.tum --no-publish --no-loop` (the odometry; the back
+end's keyframes grow with the path) (add --map to also build the whole
 run's map) and reads each replay's peak resident set size from the kernel: wait4()'s
 ru_maxrss for that child alone (and /proc/PID/status VmHWM, sampled while it runs, as a
 cross-check). Prints both peaks and their ratio, and exits 1 if long / short > 1.5 (the floor
@@ -68,7 +69,7 @@ def vm_hwm_kib(pid):
 def replay_peak(glintd, run_dir, with_map):
     """Replays the run; returns (peak RSS in MiB from wait4, VmHWM sampled, seconds, log)."""
     cmd = [glintd, "replay", os.path.join(run_dir, "scan.pcap"),
-           "--trajectory", os.path.join(run_dir, "est.tum"), "--no-publish"]
+           "--trajectory", os.path.join(run_dir, "est.tum"), "--no-publish", "--no-loop"]
     if with_map:
         cmd += ["--map", os.path.join(run_dir, "map.pcd")]
     log_path = os.path.join(run_dir, "replay.log")
