@@ -48,7 +48,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         glint_sim::simulate_to_dir(&config, &args.out).context("the simulation failed")?;
     say!("{}", summary.report().trim_end());
     say!(
-        "replaying it through the pipeline (driver, front end, odometry), publishing on iceoryx2 domain {:?} …",
+        "replaying it through the pipeline (driver, front end, odometry, back end), publishing on iceoryx2 domain {:?} …",
         args.domain
     );
     replay_cmd::run(ReplayArgs {
@@ -75,7 +75,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         },
     })?;
     say!(
-        "wrote {}/trajectory.tum (TUM), trajectory_kitti.txt, map.pcd; compare with evo: evo_ape tum {0}/groundtruth.tum {0}/trajectory.tum -a",
+        "wrote {}/trajectory.tum (SLAM, TUM), trajectory_kitti.txt, odometry.tum, map.pcd; compare with evo: evo_ape tum {0}/groundtruth.tum {0}/trajectory.tum -a",
         args.out.display()
     );
     Ok(())
