@@ -1425,6 +1425,23 @@ mod tests {
     }
 
     #[test]
+    fn a_resumed_sweep_is_judged_against_recent_ones() {
+        let mut history = MatchHistory::default();
+        // With no history, an absolute floor on the matched fraction.
+        assert!(history.resumed_match(0.6, 0.01));
+        assert!(!history.resumed_match(0.3, 0.01));
+        assert!(!history.resumed_match(0.9, f64::NAN));
+        for i in 0..60 {
+            history.push(0.7 + 0.001 * (i % 5) as f32, 0.0045);
+        }
+        assert_eq!(history.cost.len(), MatchHistory::LEN);
+        assert!(history.resumed_match(0.68, 0.006));
+        // As many matches as usual, but five times the residual: a wrong alignment.
+        assert!(!history.resumed_match(0.62, 0.023));
+        assert!(!history.resumed_match(0.4, 0.004));
+    }
+
+    #[test]
     fn samples_stay_bounded() {
         let mut s = Samples::default();
         for i in 0..(Samples::CAPACITY + 10) {
