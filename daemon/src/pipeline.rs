@@ -770,13 +770,7 @@ fn run_front_end(
 ) {
     let mut front_end = FrontEnd::new(config);
     let mut points = Vec::new();
-    loop {
-        heartbeats.beat(Heartbeats::FRONT_END);
-        let arrival = match input.recv_timeout(IDLE_BEAT) {
-            Ok(a) => a,
-            Err(RecvTimeoutError::Timeout) => continue,
-            Err(RecvTimeoutError::Disconnected) => return,
-        };
+    while let Some(arrival) = recv_beating(input, heartbeats, Heartbeats::FRONT_END) {
         let Some(reference_ns) = arrival.sweep.points.last().map(|p| p.time_ns) else {
             continue;
         };
@@ -809,6 +803,18 @@ fn run_front_end(
         };
         if send_beating(output, message, heartbeats, Heartbeats::FRONT_END).is_err() {
             return;
+        }
+    }
+}
+
+/// Receives, beating `stage`'s heartbeat while idle; None once the sender is gone.
+fn recv_beating<T>(input: &Receiver<T>, heartbeats: &Heartbeats, stage: usize) -> Option<T> {
+    loop {
+        heartbeats.beat(stage);
+        match input.recv_timeout(IDLE_BEAT) {
+            Ok(message) => return Some(message),
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => return None,
         }
     }
 }
@@ -856,16 +862,11 @@ impl BackEndLink {
         if self.lockstep {
             let mut answer = None;
             if self.pending {
-                loop {
-                    match self.corrections.recv_timeout(IDLE_BEAT) {
-                        Ok(c) => {
-                            answer = Some(c);
-                            break;
-                        }
-                        Err(RecvTimeoutError::Timeout) => heartbeats.beat(Heartbeats::ODOMETRY),
-                        Err(RecvTimeoutError::Disconnected) => return None,
-                    }
-                }
+                answer = Some(recv_beating(
+                    &self.corrections,
+                    heartbeats,
+                    Heartbeats::ODOMETRY,
+                )?);
             }
             self.pending =
                 send_beating(&self.keyframes, keyframe, heartbeats, Heartbeats::ODOMETRY).is_ok();
@@ -895,13 +896,7 @@ fn run_backend(
 ) -> (BackEnd, SlamSummary) {
     let mut backend = BackEnd::new(config);
     let mut report = SlamSummary::default();
-    loop {
-        heartbeats.beat(Heartbeats::BACK_END);
-        let keyframe = match input.recv_timeout(IDLE_BEAT) {
-            Ok(k) => k,
-            Err(RecvTimeoutError::Timeout) => continue,
-            Err(RecvTimeoutError::Disconnected) => break,
-        };
+    while let Some(keyframe) = recv_beating(input, heartbeats, Heartbeats::BACK_END) {
         let mut last = Instant::now();
         let outcome = backend.add_keyframe(keyframe, |stage| {
             let now = Instant::now();
@@ -947,13 +942,7 @@ fn run_odometry(
     let mut origin: Option<Isometry3<f64>> = None;
     let mut history = MatchHistory::default();
     let mut lost_after_gap = false;
-    loop {
-        heartbeats.beat(Heartbeats::ODOMETRY);
-        let featured = match input.recv_timeout(IDLE_BEAT) {
-            Ok(f) => f,
-            Err(RecvTimeoutError::Timeout) => continue,
-            Err(RecvTimeoutError::Disconnected) => break,
-        };
+    while let Some(featured) = recv_beating(input, heartbeats, Heartbeats::ODOMETRY) {
         let features = &featured.features;
         let reference_ns = features.reference_ns;
         let start = Instant::now();
