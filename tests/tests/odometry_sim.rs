@@ -7,12 +7,10 @@ use glint_core::metrics::{
     associate, ate_rmse, drift_along_axis, relative_errors, WAREHOUSE_LENGTHS,
 };
 use glint_core::odometry::{FrontEnd, Odometry, TrackingStatus};
-use glint_core::scan::{Scan, ScanPoint};
 use glint_core::trajectory::StampedPose;
-use glint_driver::{SensorStream, StreamConfig};
-use glint_sim::simulation::PacketKind;
 use glint_sim::{Scenario, SimConfig, Simulation};
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use glint_tests::{dense_groundtruth, for_each_scan};
+use nalgebra::Vector3;
 
 struct Run {
     estimates: Vec<StampedPose>,
@@ -28,64 +26,22 @@ fn run(scenario: Scenario, seed: u64, seconds: f64, config: &OdometryConfig) -> 
         ..SimConfig::default()
     };
     let mut sim = Simulation::new(&sim_config).expect("the scenario builds");
-    let mut stream = SensorStream::new(StreamConfig::default());
     let mut front_end = FrontEnd::new(config);
     let mut odometry = Odometry::new(config);
     let mut features = SweepFeatures::default();
-    let mut points = Vec::new();
     let mut estimates = Vec::new();
     let mut statuses = Vec::new();
-    let mut sweeps = Vec::new();
-    while let Some(packet) = sim.next_packet() {
-        let result = match packet.kind {
-            PacketKind::Data => stream.push_data(packet.payload, packet.time_ns),
-            PacketKind::Position => stream.push_position(packet.payload),
-        };
-        result.expect("simulated packets are valid");
-        sweeps.extend(std::iter::from_fn(|| stream.take_sweep()));
-        for sweep in sweeps.drain(..) {
-            let Some(reference_ns) = sweep.points.last().map(|p| p.time_ns) else {
-                continue;
-            };
-            points.clear();
-            points.extend(sweep.points.iter().map(|p| ScanPoint {
-                position: [p.x, p.y, p.z],
-                time_ns: p.time_ns,
-                reflectivity: p.reflectivity,
-                ring: p.ring,
-            }));
-            front_end.process(
-                &Scan {
-                    points: &points,
-                    rings: 16,
-                    reference_ns,
-                },
-                &mut features,
-            );
-            let e = odometry.register(&features, |_| {});
-            estimates.push(StampedPose {
-                time_ns: e.time_ns,
-                pose: e.pose,
-            });
-            statuses.push(e.status);
-        }
-    }
+    for_each_scan(&mut sim, |scan| {
+        front_end.process(scan, &mut features);
+        let e = odometry.register(&features, |_| {});
+        estimates.push(StampedPose {
+            time_ns: e.time_ns,
+            pose: e.pose,
+        });
+        statuses.push(e.status);
+    });
     // Dense ground truth from the simulator itself, every 10 ms over the run.
-    let first = estimates.first().map_or(0, |e| e.time_ns);
-    let last = estimates.last().map_or(0, |e| e.time_ns);
-    let groundtruth = (first..=last)
-        .step_by(10_000_000)
-        .chain(std::iter::once(last))
-        .map(|t| {
-            let p = sim.sensor_pose_at(t);
-            let rotation = UnitQuaternion::from_rotation_matrix(&p.rotation);
-            let translation = Translation3::new(p.translation.x, p.translation.y, p.translation.z);
-            StampedPose {
-                time_ns: t,
-                pose: Isometry3::from_parts(translation, rotation),
-            }
-        })
-        .collect();
+    let groundtruth = dense_groundtruth(&sim, &estimates);
     Run {
         estimates,
         groundtruth,

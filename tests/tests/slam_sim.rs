@@ -11,12 +11,10 @@ use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
 use glint_core::metrics::{associate, ate_rmse};
 use glint_core::odometry::{FrontEnd, Odometry, TrackingStatus};
-use glint_core::scan::{Scan, ScanPoint};
 use glint_core::trajectory::StampedPose;
-use glint_driver::{SensorStream, StreamConfig};
-use glint_sim::simulation::PacketKind;
 use glint_sim::{Scenario, SimConfig, Simulation};
-use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use glint_tests::{dense_groundtruth, for_each_scan, sensor_pose};
+use nalgebra::Isometry3;
 
 struct Run {
     odometry: Vec<StampedPose>,
@@ -25,12 +23,6 @@ struct Run {
     stats: BackEndStats,
     /// Each accepted loop's error against the ground truth: (translation m, rotation rad).
     loop_errors: Vec<(f64, f64)>,
-}
-
-fn to_isometry(p: &glint_sim::trajectory::Pose) -> Isometry3<f64> {
-    let rotation = UnitQuaternion::from_rotation_matrix(&p.rotation);
-    let translation = Translation3::new(p.translation.x, p.translation.y, p.translation.z);
-    Isometry3::from_parts(translation, rotation)
 }
 
 /// The length of one lap of the scenario's loop for `seed`, s.
@@ -57,78 +49,41 @@ fn run(scenario: Scenario, seed: u64, seconds: f64, backend_config: &BackEndConf
     };
     let config = OdometryConfig::default();
     let mut sim = Simulation::new(&sim_config).expect("the scenario builds");
-    let mut stream = SensorStream::new(StreamConfig::default());
     let mut front_end = FrontEnd::new(&config);
     let mut odometry = Odometry::new(&config);
     let mut selector = KeyframeSelector::new();
     let mut backend = BackEnd::new(backend_config);
     let mut features = SweepFeatures::default();
-    let mut points = Vec::new();
     let mut estimates = Vec::new();
-    let mut sweeps = Vec::new();
-    while let Some(packet) = sim.next_packet() {
-        let result = match packet.kind {
-            PacketKind::Data => stream.push_data(packet.payload, packet.time_ns),
-            PacketKind::Position => stream.push_position(packet.payload),
-        };
-        result.expect("simulated packets are valid");
-        sweeps.extend(std::iter::from_fn(|| stream.take_sweep()));
-        for sweep in sweeps.drain(..) {
-            let Some(reference_ns) = sweep.points.last().map(|p| p.time_ns) else {
-                continue;
-            };
-            points.clear();
-            points.extend(sweep.points.iter().map(|p| ScanPoint {
-                position: [p.x, p.y, p.z],
-                time_ns: p.time_ns,
-                reflectivity: p.reflectivity,
-                ring: p.ring,
-            }));
-            front_end.process(
-                &Scan {
-                    points: &points,
-                    rings: 16,
-                    reference_ns,
-                },
-                &mut features,
+    for_each_scan(&mut sim, |scan| {
+        front_end.process(scan, &mut features);
+        let e = odometry.register(&features, |_| {});
+        estimates.push(StampedPose {
+            time_ns: e.time_ns,
+            pose: e.pose,
+        });
+        if e.status != TrackingStatus::Lost
+            && selector.is_keyframe(e.time_ns, &e.pose, &backend_config.keyframes)
+        {
+            let keyframe = Keyframe::new(
+                e.time_ns,
+                e.pose,
+                odometry.deskewed_input(),
+                odometry.map_points(&features, &Isometry3::identity()),
+                &backend_config.keyframes,
             );
-            let e = odometry.register(&features, |_| {});
-            estimates.push(StampedPose {
-                time_ns: e.time_ns,
-                pose: e.pose,
-            });
-            if e.status != TrackingStatus::Lost
-                && selector.is_keyframe(e.time_ns, &e.pose, &backend_config.keyframes)
-            {
-                let keyframe = Keyframe::new(
-                    e.time_ns,
-                    e.pose,
-                    odometry.deskewed_input(),
-                    odometry.map_points(&features, &Isometry3::identity()),
-                    &backend_config.keyframes,
-                );
-                backend.add_keyframe(keyframe, |_| {});
-            }
+            backend.add_keyframe(keyframe, |_| {});
         }
-    }
+    });
     let slam = backend.trajectory(&estimates);
-    let first = estimates.first().map_or(0, |e| e.time_ns);
-    let last = estimates.last().map_or(0, |e| e.time_ns);
-    let groundtruth = (first..=last)
-        .step_by(10_000_000)
-        .chain(std::iter::once(last))
-        .map(|t| StampedPose {
-            time_ns: t,
-            pose: to_isometry(&sim.sensor_pose_at(t)),
-        })
-        .collect();
+    let groundtruth = dense_groundtruth(&sim, &estimates);
     let keyframes = backend.keyframes();
     let loop_errors = backend
         .loops()
         .iter()
         .map(|l| {
-            let truth = to_isometry(&sim.sensor_pose_at(keyframes[l.candidate].time_ns)).inverse()
-                * to_isometry(&sim.sensor_pose_at(keyframes[l.query].time_ns));
+            let truth = sensor_pose(&sim, keyframes[l.candidate].time_ns).inverse()
+                * sensor_pose(&sim, keyframes[l.query].time_ns);
             let error = truth.inverse() * l.verification.relative;
             (error.translation.vector.norm(), error.rotation.angle())
         })
