@@ -1071,6 +1071,21 @@ fn run_odometry(
     (world, odometry.map_sizes(), dropped)
 }
 
+/// The base pose and body twist from the sensor's, with `m` = `base_link` ← sensor (see
+/// `MountingConfig`): the odom frame is the base's first pose, `T_base = M · T_sensor · M⁻¹`,
+/// and the twist is `Ad_M` of the sensor's.
+fn to_base(
+    m: &Isometry3<f64>,
+    pose: &Isometry3<f64>,
+    twist: &Vector6<f64>,
+) -> (Isometry3<f64>, Vector6<f64>) {
+    let base = m * pose * m.inverse();
+    let w = m.rotation * Vector3::new(twist[0], twist[1], twist[2]);
+    let v =
+        m.rotation * Vector3::new(twist[3], twist[4], twist[5]) + m.translation.vector.cross(&w);
+    (base, Vector6::new(w.x, w.y, w.z, v.x, v.y, v.z))
+}
+
 /// The publishing end: poses, predictions, status, trajectory files and the report.
 struct Sink {
     base_from_sensor: Isometry3<f64>,
@@ -1130,22 +1145,6 @@ impl Sink {
         })
     }
 
-    /// The base pose and body twist from the sensor's (see `MountingConfig`): the odom frame is
-    /// the base's first pose, `T_base = M · T_sensor · M⁻¹`, and the twist is `Ad_M` of the
-    /// sensor's.
-    fn to_base(
-        &self,
-        pose: &Isometry3<f64>,
-        twist: &Vector6<f64>,
-    ) -> (Isometry3<f64>, Vector6<f64>) {
-        let m = &self.base_from_sensor;
-        let base = m * pose * m.inverse();
-        let w = m.rotation * Vector3::new(twist[0], twist[1], twist[2]);
-        let v = m.rotation * Vector3::new(twist[3], twist[4], twist[5])
-            + m.translation.vector.cross(&w);
-        (base, Vector6::new(w.x, w.y, w.z, v.x, v.y, v.z))
-    }
-
     fn take(&mut self, e: Estimated, bus: Option<&mut PoseBus>, counters: &ReceiveCounters) {
         let estimate = &e.estimate;
         let mut flags = match estimate.status {
@@ -1157,7 +1156,7 @@ impl Sink {
         if counters.silent.load(Ordering::Relaxed) {
             flags = flags.with(StatusFlags::SENSOR_SILENT);
         }
-        let (pose, twist) = self.to_base(&estimate.pose, &estimate.velocity);
+        let (pose, twist) = to_base(&self.base_from_sensor, &estimate.pose, &estimate.velocity);
         if let Some((last, _)) = self.latest {
             let dt = estimate.time_ns.saturating_sub(last.time_ns);
             if dt > 0 && dt < RESUME_GAP_NS {
@@ -1173,7 +1172,7 @@ impl Sink {
         };
         let map_pose = e.map_from_odom * estimate.pose;
         let map_sample = PoseSample {
-            pose: self.to_base(&map_pose, &estimate.velocity).0,
+            pose: to_base(&self.base_from_sensor, &map_pose, &estimate.velocity).0,
             flags: if e.loop_closed {
                 flags.with(StatusFlags::LOOP_CLOSED)
             } else {
@@ -1200,13 +1199,30 @@ impl Sink {
             time_ns: estimate.time_ns,
             pose: map_pose,
         };
-        let streamed: [(&str, &mut Option<TrajectoryWriter>, &StampedPose); 3] = [
-            ("trajectory", &mut self.trajectory, &corrected),
-            ("KITTI trajectory", &mut self.kitti, &corrected),
-            ("odometry trajectory", &mut self.odom_trajectory, &stamped),
+        // With a final trajectory, the corrected files are written at the end instead.
+        let corrected_now = !self.final_trajectory;
+        let streamed: [(&str, &mut Option<TrajectoryWriter>, &StampedPose, bool); 3] = [
+            (
+                "trajectory",
+                &mut self.trajectory,
+                &corrected,
+                corrected_now,
+            ),
+            (
+                "KITTI trajectory",
+                &mut self.kitti,
+                &corrected,
+                corrected_now,
+            ),
+            (
+                "odometry trajectory",
+                &mut self.odom_trajectory,
+                &stamped,
+                true,
+            ),
         ];
-        for (name, writer, pose) in streamed {
-            if self.final_trajectory && !name.starts_with("odometry") {
+        for (name, writer, pose, now) in streamed {
+            if !now {
                 continue;
             }
             if let Some(w) = writer.as_mut() {
@@ -1449,25 +1465,9 @@ mod tests {
             nalgebra::Translation3::new(1.0, 0.0, 0.0),
             nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::PI),
         );
-        let options_sink = Sink {
-            base_from_sensor: m,
-            trajectory: None,
-            kitti: None,
-            odom_trajectory: None,
-            final_trajectory: false,
-            keep_estimates: false,
-            summary: Summary::default(),
-            latest: None,
-            period_ns: 100_000_000,
-            window_start: Instant::now(),
-            window_sweeps: 0,
-            window_packets: 0,
-            window_latency: Vec::new(),
-            sweeps: 0,
-        };
         let twist = Vector6::new(0.0, 0.0, 0.3, 1.0, 0.0, 0.0);
         let sensor_pose = exp(&twist);
-        let (base, base_twist) = options_sink.to_base(&sensor_pose, &twist);
+        let (base, base_twist) = to_base(&m, &sensor_pose, &twist);
         // Consistency: the base pose is the exponential of the base twist.
         let from_twist = exp(&base_twist);
         assert!((base.translation.vector - from_twist.translation.vector).norm() < 1e-9);

@@ -481,20 +481,21 @@ fn a_replay_is_byte_identical_at_any_pace() {
 fn a_bad_configuration_is_refused_naming_the_key() {
     let dir = scratch("config");
     let path = dir.join("bad.toml");
-    std::fs::write(&path, "[sensor]\ndata_prot = 2368\n").unwrap();
-    let o = glintd()
-        .args(["run", "--config", path.to_str().unwrap(), "--check"])
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("data_prot"));
-    std::fs::write(&path, "[odometry.solver]\nhuber_geometric = -1.0\n").unwrap();
-    let o = glintd()
-        .args(["run", "--config", path.to_str().unwrap(), "--check"])
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("odometry.solver.huber_geometric"));
+    for (text, named) in [
+        ("[sensor]\ndata_prot = 2368\n", "data_prot"),
+        (
+            "[odometry.solver]\nhuber_geometric = -1.0\n",
+            "odometry.solver.huber_geometric",
+        ),
+    ] {
+        std::fs::write(&path, text).unwrap();
+        let o = glintd()
+            .args(["run", "--config", path.to_str().unwrap(), "--check"])
+            .output()
+            .unwrap();
+        assert!(!o.status.success());
+        assert!(String::from_utf8_lossy(&o.stderr).contains(named), "{text}");
+    }
     let example = concat!(env!("CARGO_MANIFEST_DIR"), "/../systemd/glintd.toml");
     let o = glintd()
         .args(["run", "--config", example, "--check"])
