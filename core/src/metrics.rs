@@ -584,6 +584,33 @@ mod tests {
         );
     }
 
+    /// What floating-point rounding may leave of a zero ATE: relative precision 1e-8 of the
+    /// largest coordinate (the SVD of nearly collinear points loses a few digits; a wrong
+    /// alignment would be off by metres, not by micrometres).
+    fn rounding_bound(pairs: &[PosePair]) -> f64 {
+        let scale = pairs
+            .iter()
+            .flat_map(|(e, g)| [e.translation.vector.norm(), g.translation.vector.norm()])
+            .fold(1.0, f64::max);
+        1e-8 * scale
+    }
+
+    #[test]
+    fn ate_of_three_nearly_collinear_poses_is_rounding_only() {
+        // Found by the property below in CI: 6.6e-9 m, which a fixed 1e-9 m bound refused.
+        let gt: Vec<Isometry3<f64>> = [
+            [-23.740299859853444, 35.53970729774131, -35.37644212666186],
+            [-69.79990958940378, -74.6363821234672, 92.26056292420675],
+            [-16.912718755517464, 55.06794039314432, -55.31619770532315],
+        ]
+        .iter()
+        .map(|t| Isometry3::translation(t[0], t[1], t[2]))
+        .collect();
+        let pairs: Vec<PosePair> = gt.iter().map(|g| (*g, *g)).collect();
+        let ate = ate_rmse(&pairs).expect("poses");
+        assert!(ate.rmse < rounding_bound(&pairs), "{ate:?}");
+    }
+
     fn arb_pose(reach: f64) -> impl Strategy<Value = Isometry3<f64>> {
         (
             prop::array::uniform3(-reach..reach),
@@ -600,7 +627,7 @@ mod tests {
         ) {
             let pairs: Vec<PosePair> = gt.iter().map(|g| (motion * g, *g)).collect();
             let ate = ate_rmse(&pairs).expect("poses");
-            prop_assert!(ate.rmse < 1e-9, "{:?}", ate);
+            prop_assert!(ate.rmse < rounding_bound(&pairs), "{:?}", ate);
         }
 
         #[test]
@@ -610,7 +637,8 @@ mod tests {
         ) {
             let pairs: Vec<PosePair> = gt.iter().map(|g| (motion * g, *g)).collect();
             if let Some(rpe) = relative_errors(&pairs, &[1.0, 5.0]) {
-                prop_assert!(rpe.overall.translation_pct < 1e-9, "{:?}", rpe);
+                // Composing with a motion 1 km away rounds at ~1e-13 m; 1e-7 % of 1 m is 1e-9 m.
+                prop_assert!(rpe.overall.translation_pct < 1e-7, "{:?}", rpe);
                 prop_assert!(rpe.overall.rotation_deg_per_m < 1e-9, "{:?}", rpe);
             }
         }
