@@ -238,10 +238,14 @@ impl OdometryConfig {
     /// The ablation without intensity: no intensity roughness in feature selection and no
     /// intensity residual (geometry only, as LOAM).
     pub fn geometry_only() -> Self {
-        let mut c = Self::default();
-        c.features.intensity_weight = 0.0;
-        c.solver.use_intensity = false;
-        c
+        Self::default().without_intensity()
+    }
+
+    /// This configuration with intensity switched off (the geometry-only ablation).
+    pub fn without_intensity(mut self) -> Self {
+        self.features.intensity_weight = 0.0;
+        self.solver.use_intensity = false;
+        self
     }
 }
 

@@ -215,6 +215,20 @@ pub fn drift_along_axis(
     sums.mean().map(|m| m.translation_pct)
 }
 
+/// Return-to-start error, m: how far the estimate's displacement from its first pose to its
+/// last differs from the ground truth's, |t(est₀⁻¹·estₙ) − t(gt₀⁻¹·gtₙ)| (the paper's "return
+/// to start" drift when the run ends where it began; meaningful on any run as the end-point
+/// error in the start's frame). `None` for fewer than two poses.
+pub fn return_to_start(pairs: &[PosePair]) -> Option<f64> {
+    let ((est_0, gt_0), (est_n, gt_n)) = (pairs.first()?, pairs.last()?);
+    if pairs.len() < 2 {
+        return None;
+    }
+    let est = est_0.inv_mul(est_n).translation.vector;
+    let gt = gt_0.inv_mul(gt_n).translation.vector;
+    Some((est - gt).norm())
+}
+
 /// The length of the ground truth's path through the associated poses, in m.
 pub fn path_length(pairs: &[PosePair]) -> f64 {
     cumulative_distance(pairs).last().copied().unwrap_or(0.0)
@@ -593,6 +607,24 @@ mod tests {
             .flat_map(|(e, g)| [e.translation.vector.norm(), g.translation.vector.norm()])
             .fold(1.0, f64::max);
         1e-8 * scale
+    }
+
+    #[test]
+    fn return_to_start_is_the_end_point_error_in_the_start_frame() {
+        let start = Isometry3::new(Vector3::new(5.0, 1.0, 0.0), Vector3::new(0.0, 0.0, 1.0));
+        let gt = [start, start * Isometry3::translation(10.0, 0.0, 0.0), start];
+        // The estimate ends 0.3 m along its start's y axis from where it began, in another
+        // world frame altogether.
+        let frame = Isometry3::new(Vector3::new(-40.0, 7.0, 2.0), Vector3::new(0.2, 0.0, -2.0));
+        let est = [
+            frame * start,
+            frame * gt[1],
+            frame * start * Isometry3::translation(0.0, 0.3, 0.0),
+        ];
+        let pairs: Vec<PosePair> = est.into_iter().zip(gt).collect();
+        let error = return_to_start(&pairs).expect("poses");
+        assert!((error - 0.3).abs() < 1e-12, "{error}");
+        assert_eq!(return_to_start(&pairs[..1]), None);
     }
 
     #[test]

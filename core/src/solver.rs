@@ -115,6 +115,8 @@ pub fn align(
     let mut iterations = 0;
     let mut edges = 0;
     let mut planes = 0;
+    // The system at `pose` with the latest models.
+    let mut last = None;
     for _ in 0..config.outer_iterations.max(1) {
         let round_start = pose;
         let line = |_: &_, values: &_, vectors: &_, _: &_| line_model(config, values, vectors);
@@ -140,14 +142,21 @@ pub fn align(
         edges = edge_links.collect(&mut models);
         planes = plane_links.collect(&mut models);
         let mut converged = false;
-        let mut system = build(&pose, &models, input, maps.intensity, config, &mut corners);
+        let system = last.insert(build(
+            &pose,
+            &models,
+            input,
+            maps.intensity,
+            config,
+            &mut corners,
+        ));
         for _ in 0..config.inner_iterations.max(1) {
             if system.count == 0 {
                 break;
             }
-            let frame = Balanced::new(&system, &pose);
-            let hessian = frame.hessian(&system);
-            let gradient = frame.gradient(&system);
+            let frame = Balanced::new(system, &pose);
+            let hessian = frame.hessian(system);
+            let gradient = frame.gradient(system);
             let eigen = SymmetricEigen::new(hessian);
             let largest = eigen.eigenvalues.max().max(1e-12);
             // Levenberg–Marquardt: retry with more damping until the cost drops. An accepted
@@ -173,7 +182,7 @@ pub fn align(
                 iterations += 1;
                 if trial.cost <= system.cost {
                     pose = candidate;
-                    system = trial;
+                    *system = trial;
                     lambda = (lambda / 3.0).max(1e-7);
                     accepted = true;
                     converged = step.norm() < config.convergence;
@@ -190,8 +199,12 @@ pub fn align(
             break;
         }
     }
-    let system = build(&pose, &models, input, maps.intensity, config, &mut corners);
-    let translational = system.geometric_translation / system.planes.max(1) as f64;
+    // The last accepted trial was built at `pose` with the last round's models: it is the
+    // final system (re-association happens only at the start of a round).
+    let system =
+        last.unwrap_or_else(|| build(&pose, &models, input, maps.intensity, config, &mut corners));
+    let info = plane_information(&pose, &models);
+    let translational = info.translation / info.planes.max(1) as f64;
     let eigen = SymmetricEigen::new(translational);
     let (weakest, degeneracy) = eigen
         .eigenvalues
@@ -200,8 +213,8 @@ pub fn align(
         .min_by(|a, b| a.1.total_cmp(b.1))
         .map(|(i, &v)| (eigen.eigenvectors.column(i).into_owned(), v.max(0.0)))
         .unwrap_or((Vector3::x(), 0.0));
-    let rotational_degeneracy = if system.squared_ranges > 0.0 {
-        SymmetricEigen::new(system.geometric_rotation / system.squared_ranges)
+    let rotational_degeneracy = if info.squared_ranges > 0.0 {
+        SymmetricEigen::new(info.rotation / info.squared_ranges)
             .eigenvalues
             .min()
             .max(0.0)
@@ -478,10 +491,43 @@ struct System {
     cost: f64,
     count: usize,
     intensity: usize,
-    geometric_translation: Matrix3<f64>,
-    geometric_rotation: Matrix3<f64>,
+    /// Σ of the plane points' squared ranges from the sensor, and their count (for the
+    /// balanced frame's RMS range).
     squared_ranges: f64,
     planes: usize,
+}
+
+/// What the plane correspondences constrain at a pose: the degeneracy measures' sums. Read once
+/// per alignment, at its end (not in every Levenberg–Marquardt trial).
+struct PlaneInformation {
+    translation: Matrix3<f64>,
+    rotation: Matrix3<f64>,
+    squared_ranges: f64,
+    planes: usize,
+}
+
+/// See [`PlaneInformation`]. The degeneracy measure reads planes only: their normals are well
+/// determined, while an edge line fitted through a few noisy map points can point anywhere and
+/// would count as information along a corridor's axis.
+fn plane_information(pose: &Isometry3<f64>, models: &[Model]) -> PlaneInformation {
+    let mut info = PlaneInformation {
+        translation: Matrix3::zeros(),
+        rotation: Matrix3::zeros(),
+        squared_ranges: 0.0,
+        planes: 0,
+    };
+    for m in models {
+        if let Shape::Plane(n) = m.shape {
+            info.translation.ger(1.0, &n, &n, 1.0);
+            // Rotation about the sensor moves a point at r from it by δθ × r.
+            let r = pose.rotation * m.point;
+            let lever = r.cross(&n);
+            info.rotation.ger(1.0, &lever, &lever, 1.0);
+            info.squared_ranges += r.norm_squared();
+            info.planes += 1;
+        }
+    }
+    info
 }
 
 /// Huber weight and cost of a residual of norm `r` with threshold `k`.
@@ -508,8 +554,6 @@ fn build(
         cost: 0.0,
         count: 0,
         intensity: 0,
-        geometric_translation: Matrix3::zeros(),
-        geometric_rotation: Matrix3::zeros(),
         squared_ranges: 0.0,
         planes: 0,
     };
@@ -522,19 +566,10 @@ fn build(
                 // ∂q/∂δ = [−[q]×, I], so ∂e/∂δ = nᵀ·[−[q]×, I] = [(q × n)ᵀ, nᵀ].
                 let arm = q.cross(&n);
                 let j = Vector6::new(arm.x, arm.y, arm.z, n.x, n.y, n.z);
-                s.hessian += w * j * j.transpose();
-                s.gradient += w * e * j;
+                s.hessian.ger(w, &j, &j, 1.0);
+                s.gradient.axpy(w * e, &j, 1.0);
                 s.cost += cost;
-                // The degeneracy measure reads planes only: their normals are well determined,
-                // while an edge line fitted through a few noisy map points can point anywhere
-                // and would count as information along a corridor's axis.
-                let projection = n * n.transpose();
-                s.geometric_translation += projection;
-                // Rotation about the sensor moves a point at r from it by δθ × r.
-                let r = q - pose.translation.vector;
-                let lever = r.cross(&n);
-                s.geometric_rotation += lever * lever.transpose();
-                s.squared_ranges += r.norm_squared();
+                s.squared_ranges += m.point.norm_squared();
                 s.planes += 1;
             }
             Shape::Line(d) => {
@@ -572,8 +607,8 @@ fn build(
             let g = -weight * along;
             let j_rot = -(g.transpose() * skew(&q));
             let j = Vector6::new(j_rot[0], j_rot[1], j_rot[2], g.x, g.y, g.z);
-            s.hessian += w * j * j.transpose();
-            s.gradient += w * j * r;
+            s.hessian.ger(w, &j, &j, 1.0);
+            s.gradient.axpy(w * r, &j, 1.0);
             s.cost += cost;
             s.count += 1;
             s.intensity += 1;

@@ -190,8 +190,7 @@ impl DaemonConfig {
         // toml's message names the key and shows the line (unknown field, wrong type).
         let mut config: Self = toml::from_str(text).map_err(|e| anyhow::anyhow!("{e}"))?;
         if !config.pipeline.intensity {
-            config.odometry.features.intensity_weight = 0.0;
-            config.odometry.solver.use_intensity = false;
+            config.odometry = config.odometry.without_intensity();
         }
         config.validate()?;
         Ok(config)

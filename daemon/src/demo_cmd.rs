@@ -66,6 +66,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         map_voxel: 0.1,
         pace: Pace::Max,
         predicted_rate: 50.0,
+        config: None,
         sensor: SensorArgs {
             model: None,
             calibration: None,

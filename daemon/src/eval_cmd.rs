@@ -69,6 +69,9 @@ pub fn run(args: EvalArgs) -> Result<()> {
             ate.poses
         );
     }
+    if let Some(e) = metrics::return_to_start(&pairs) {
+        say!("end-point error in the start's frame (return to start): {e:.4} m");
+    }
     Ok(())
 }
 

@@ -13,6 +13,7 @@ macro_rules! say {
     };
 }
 
+mod bench_cmd;
 mod capture;
 mod config;
 mod decode_cmd;
@@ -60,6 +61,8 @@ enum Command {
     Record(record_cmd::RecordArgs),
     /// Optimise a g2o pose graph: initial and final cost, iterations, time.
     Posegraph(posegraph_cmd::PoseGraphArgs),
+    /// Time the odometry per sweep on one thread (pin it with taskset for the one-core figure).
+    Bench(bench_cmd::BenchArgs),
 }
 
 fn print_line(args: std::fmt::Arguments<'_>) {
@@ -115,6 +118,7 @@ fn main() -> ExitCode {
         Command::Eval(args) => eval_cmd::run(args),
         Command::Sim(args) => sim_cmd::run(args),
         Command::Posegraph(args) => posegraph_cmd::run(args),
+        Command::Bench(args) => bench_cmd::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -9,13 +9,14 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use glint_core::backend::config::BackEndConfig;
-use glint_core::config::OdometryConfig;
-use glint_core::metrics::{associate, ate_rmse, relative_errors, WAREHOUSE_LENGTHS};
+use glint_core::metrics::{
+    associate, ate_rmse, relative_errors, return_to_start, WAREHOUSE_LENGTHS,
+};
 use glint_core::trajectory::{parse_tum, StampedPose};
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::Vector3;
 
 use crate::capture::SensorArgs;
+use crate::config::DaemonConfig;
 use crate::pipeline::{self, Input, Options, Pace, PublishOptions};
 
 /// Arguments of `glintd replay`.
@@ -66,6 +67,11 @@ pub struct ReplayArgs {
     /// Rate of the predicted pose stream, Hz (0: off).
     #[arg(long, default_value_t = 50.0)]
     pub predicted_rate: f64,
+    /// Take the odometry, back-end, pipeline and mounting parameters from a daemon
+    /// configuration (as `glintd run --config`), so a capture replays with what the robot runs.
+    /// `--no-intensity` and `--no-loop` still apply on top.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
     #[command(flatten)]
     pub sensor: SensorArgs,
 }
@@ -78,11 +84,16 @@ fn read_tum(path: &std::path::Path) -> Result<Vec<StampedPose>> {
 
 /// Runs the command.
 pub fn run(args: ReplayArgs) -> Result<()> {
-    let config = if args.no_intensity {
-        OdometryConfig::geometry_only()
-    } else {
-        OdometryConfig::default()
+    let daemon = match &args.config {
+        Some(path) => DaemonConfig::load(path)?,
+        None => DaemonConfig::default(),
     };
+    let config = if args.no_intensity {
+        daemon.odometry.clone().without_intensity()
+    } else {
+        daemon.odometry.clone()
+    };
+    let loop_closure = !args.no_loop && daemon.pipeline.loop_closure;
     let groundtruth = args.groundtruth.as_deref().map(read_tum).transpose()?;
     let known_poses = if args.seed_from_groundtruth {
         Some(
@@ -104,8 +115,8 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         stream: args.sensor.stream_config()?,
         odometry: config,
         queue: 2,
-        base_from_sensor: Isometry3::identity(),
-        backend: (!args.no_loop).then(BackEndConfig::default),
+        base_from_sensor: daemon.mounting.base_from_sensor(),
+        backend: loop_closure.then(|| daemon.backend.clone()),
         odom_trajectory: args.odom_trajectory.clone(),
         publish: (!args.no_publish).then(|| PublishOptions {
             domain: args.domain.clone(),
@@ -231,6 +242,9 @@ pub fn run(args: ReplayArgs) -> Result<()> {
             }
             if let Some(a) = ate_rmse(&pairs) {
                 say!("{prefix}{a}");
+            }
+            if let Some(e) = return_to_start(&pairs) {
+                say!("{prefix}end-point error in the start's frame (return to start) {e:.3} m");
             }
         }
     }

@@ -9,7 +9,7 @@ use glint_core::backend::keyframe::{Keyframe, KeyframeSelector};
 use glint_core::backend::{BackEnd, BackEndStats};
 use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
-use glint_core::metrics::{associate, ate_rmse};
+use glint_core::metrics::{self, associate, ate_rmse};
 use glint_core::odometry::{FrontEnd, Odometry, TrackingStatus};
 use glint_core::trajectory::StampedPose;
 use glint_sim::{Scenario, SimConfig, Simulation};
@@ -100,11 +100,7 @@ fn run(scenario: Scenario, seed: u64, seconds: f64, backend_config: &BackEndConf
 /// |t(first⁻¹·last)| error against the ground truth's, m: how far from the start the estimate
 /// ends up when the robot is back at (or near) it.
 fn return_to_start(estimate: &[StampedPose], groundtruth: &[StampedPose]) -> f64 {
-    let pairs = associate(estimate, groundtruth);
-    let (a, b) = (pairs.first().expect("poses"), pairs.last().expect("poses"));
-    let est = a.0.inverse() * b.0;
-    let gt = a.1.inverse() * b.1;
-    (est.translation.vector - gt.translation.vector).norm()
+    metrics::return_to_start(&associate(estimate, groundtruth)).expect("poses")
 }
 
 /// A false loop: more than 0.3 m or 2° from the ground truth's relative pose.
