@@ -215,18 +215,64 @@ pub fn drift_along_axis(
     sums.mean().map(|m| m.translation_pct)
 }
 
-/// Return-to-start error, m: how far the estimate's displacement from its first pose to its
-/// last differs from the ground truth's, |t(est₀⁻¹·estₙ) − t(gt₀⁻¹·gtₙ)| (the paper's "return
-/// to start" drift when the run ends where it began; meaningful on any run as the end-point
-/// error in the start's frame). `None` for fewer than two poses.
-pub fn return_to_start(pairs: &[PosePair]) -> Option<f64> {
-    let ((est_0, gt_0), (est_n, gt_n)) = (pairs.first()?, pairs.last()?);
+/// End-point error, m: how far the estimate's displacement from its first pose to its last
+/// differs from the ground truth's, |t(est₀⁻¹·estₙ) − t(gt₀⁻¹·gtₙ)|: the end's error in the
+/// start's frame, whatever the frame the estimate is in. `None` for fewer than two poses.
+pub fn end_point_error(pairs: &[PosePair]) -> Option<f64> {
     if pairs.len() < 2 {
         return None;
     }
-    let est = est_0.inv_mul(est_n).translation.vector;
-    let gt = gt_0.inv_mul(gt_n).translation.vector;
-    Some((est - gt).norm())
+    let ((est_0, gt_0), (est_n, gt_n)) = (pairs.first()?, pairs.last()?);
+    Some(displacement_error(est_0, gt_0, est_n, gt_n))
+}
+
+/// The travel [`return_to_start`] asks for before a pose counts as a return, m: well past the
+/// start's own neighbourhood on any warehouse-scale loop.
+pub const RETURN_MIN_TRAVEL_M: f64 = 10.0;
+
+/// The error when the robot is back at its start (the paper's "return to start" figure).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReturnToStart {
+    /// Index of the pose pair where the ground truth comes closest to its first position after
+    /// the minimum travel.
+    pub index: usize,
+    /// How far that ground-truth position is from the first, m.
+    pub distance_from_start: f64,
+    /// The displacement error there, as [`end_point_error`] computes it, m.
+    pub error: f64,
+}
+
+/// Where the ground truth, having travelled at least `min_travel_m` along its path, comes
+/// closest to its first position, and the estimate's displacement error there. A run that goes
+/// on past its start (a lap and some) is scored at the return, not at its end. `None` when
+/// the path never gets that long.
+pub fn return_to_start(pairs: &[PosePair], min_travel_m: f64) -> Option<ReturnToStart> {
+    let (est_0, gt_0) = pairs.first()?;
+    let dist = cumulative_distance(pairs);
+    let (index, distance_from_start) = pairs
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| dist[*i] >= min_travel_m)
+        .map(|(i, (_, gt))| (i, (gt.translation.vector - gt_0.translation.vector).norm()))
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    let (est_j, gt_j) = &pairs[index];
+    Some(ReturnToStart {
+        index,
+        distance_from_start,
+        error: displacement_error(est_0, gt_0, est_j, gt_j),
+    })
+}
+
+/// |t(est_a⁻¹·est_b) − t(gt_a⁻¹·gt_b)|.
+fn displacement_error(
+    est_a: &Isometry3<f64>,
+    gt_a: &Isometry3<f64>,
+    est_b: &Isometry3<f64>,
+    gt_b: &Isometry3<f64>,
+) -> f64 {
+    let est = est_a.inv_mul(est_b).translation.vector;
+    let gt = gt_a.inv_mul(gt_b).translation.vector;
+    (est - gt).norm()
 }
 
 /// The length of the ground truth's path through the associated poses, in m.
@@ -610,7 +656,7 @@ mod tests {
     }
 
     #[test]
-    fn return_to_start_is_the_end_point_error_in_the_start_frame() {
+    fn end_point_error_is_the_end_in_the_start_frame() {
         let start = Isometry3::new(Vector3::new(5.0, 1.0, 0.0), Vector3::new(0.0, 0.0, 1.0));
         let gt = [start, start * Isometry3::translation(10.0, 0.0, 0.0), start];
         // The estimate ends 0.3 m along its start's y axis from where it began, in another
@@ -622,9 +668,39 @@ mod tests {
             frame * start * Isometry3::translation(0.0, 0.3, 0.0),
         ];
         let pairs: Vec<PosePair> = est.into_iter().zip(gt).collect();
-        let error = return_to_start(&pairs).expect("poses");
+        let error = end_point_error(&pairs).expect("poses");
         assert!((error - 0.3).abs() < 1e-12, "{error}");
-        assert_eq!(return_to_start(&pairs[..1]), None);
+        assert_eq!(end_point_error(&pairs[..1]), None);
+    }
+
+    #[test]
+    fn return_to_start_is_scored_where_the_truth_comes_back() {
+        // A 40 m square lap, then 5 m more; the estimate is exact until the return, 0.2 m off
+        // sideways there, and 1 m off at the end.
+        let mut pose = Isometry3::identity();
+        let mut gt = vec![pose];
+        for _side in 0..4 {
+            for _ in 0..10 {
+                pose *= Isometry3::translation(1.0, 0.0, 0.0);
+                gt.push(pose);
+            }
+            pose *= Isometry3::rotation(Vector3::z() * (PI / 2.0));
+            *gt.last_mut().expect("poses") = pose;
+        }
+        let returned = gt.len() - 1;
+        for step in 1..=5 {
+            gt.push(gt[returned] * Isometry3::translation(step as f64, 0.0, 0.0));
+        }
+        let mut est = gt.clone();
+        est[returned] *= Isometry3::translation(0.0, 0.2, 0.0);
+        *est.last_mut().expect("poses") *= Isometry3::translation(0.0, 1.0, 0.0);
+        let pairs: Vec<PosePair> = est.into_iter().zip(gt).collect();
+        let r = return_to_start(&pairs, 10.0).expect("a lap");
+        assert_eq!(r.index, returned);
+        assert!(r.distance_from_start < 1e-9, "{r:?}");
+        assert!((r.error - 0.2).abs() < 1e-9, "{r:?}");
+        assert!((end_point_error(&pairs).expect("poses") - 1.0).abs() < 1e-9);
+        assert_eq!(return_to_start(&pairs, 1000.0), None);
     }
 
     #[test]

@@ -69,8 +69,16 @@ pub fn run(args: EvalArgs) -> Result<()> {
             ate.poses
         );
     }
-    if let Some(e) = metrics::return_to_start(&pairs) {
-        say!("end-point error in the start's frame (return to start): {e:.4} m");
+    if let Some(r) = metrics::return_to_start(&pairs, metrics::RETURN_MIN_TRAVEL_M) {
+        say!(
+            "return to start: {:.4} m error at pose {}, where the truth comes back within {:.3} m of its start",
+            r.error,
+            r.index,
+            r.distance_from_start
+        );
+    }
+    if let Some(e) = metrics::end_point_error(&pairs) {
+        say!("end-point error in the start's frame: {e:.4} m");
     }
     Ok(())
 }

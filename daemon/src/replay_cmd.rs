@@ -10,7 +10,7 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 use clap::Args;
 use glint_core::metrics::{
-    associate, ate_rmse, relative_errors, return_to_start, WAREHOUSE_LENGTHS,
+    associate, ate_rmse, relative_errors, return_to_start, RETURN_MIN_TRAVEL_M, WAREHOUSE_LENGTHS,
 };
 use glint_core::trajectory::{parse_tum, StampedPose};
 use nalgebra::Vector3;
@@ -243,8 +243,12 @@ pub fn run(args: ReplayArgs) -> Result<()> {
             if let Some(a) = ate_rmse(&pairs) {
                 say!("{prefix}{a}");
             }
-            if let Some(e) = return_to_start(&pairs) {
-                say!("{prefix}end-point error in the start's frame (return to start) {e:.3} m");
+            if let Some(r) = return_to_start(&pairs, RETURN_MIN_TRAVEL_M) {
+                say!(
+                    "{prefix}return to start: {:.3} m error where the truth comes back within {:.2} m of its start",
+                    r.error,
+                    r.distance_from_start
+                );
             }
         }
     }
