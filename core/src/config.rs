@@ -180,8 +180,11 @@ pub struct SolverConfig {
     /// Stop when an update moves less than this (rad and m).
     pub convergence: f64,
     /// Between rounds, a point keeps its correspondence unless the pose moved it more than
-    /// this, m. Map points are ≥ 0.1 m apart, so a centimetre seldom changes a neighbourhood,
-    /// and re-searching every point every round was most of the solver's time.
+    /// this, m. A line or plane model stays valid as the point slides along it, and map points
+    /// are ≥ 0.2 m apart, so a few centimetres seldom change a neighbourhood; re-searching
+    /// every point every round was most of the solver's time. Measured on 60 s runs: 5 cm
+    /// instead of 1 cm took 15–20 % off the alignment with drift unchanged within the seeds'
+    /// spread (warehouse 3, yard 7 and 19, corridor 5); 10 cm cost the yard 0.02–0.05 %.
     pub reassociation_distance: f64,
     /// Fewer geometric correspondences than this: the sweep is not trusted (lost).
     pub min_correspondences: usize,
@@ -210,7 +213,7 @@ impl Default for SolverConfig {
             huber_intensity: 0.1,
             hold_information: 0.002,
             convergence: 1e-4,
-            reassociation_distance: 0.01,
+            reassociation_distance: 0.05,
             min_correspondences: 30,
             degeneracy_threshold: 0.01,
             rotational_degeneracy_threshold: 0.002,
