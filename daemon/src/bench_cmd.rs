@@ -125,10 +125,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
         "{} sweeps × {} on one thread ({}): {:.1} sweeps/s",
         sweeps.len(),
         args.repeat.max(1),
-        if args.no_intensity {
-            "geometry only"
-        } else {
+        if config.solver.use_intensity {
             "with intensity"
+        } else {
+            "geometry only"
         },
         total.len() as f64 / wall
     );

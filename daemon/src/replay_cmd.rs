@@ -94,6 +94,11 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         daemon.odometry.clone()
     };
     let loop_closure = !args.no_loop && daemon.pipeline.loop_closure;
+    let mode = if config.solver.use_intensity {
+        "with intensity"
+    } else {
+        "geometry only"
+    };
     let groundtruth = args.groundtruth.as_deref().map(read_tum).transpose()?;
     let known_poses = if args.seed_from_groundtruth {
         Some(
@@ -151,16 +156,11 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     }
     let n = timings.total.len();
     say!(
-        "sweeps: {n} ({} initialising, {} tracking, {} degenerate, {} lost){}",
+        "sweeps: {n} ({} initialising, {} tracking, {} degenerate, {} lost); {mode}",
         statuses[0],
         statuses[1],
         statuses[2],
         statuses[3],
-        if args.no_intensity {
-            "; geometry only"
-        } else {
-            "; with intensity"
-        }
     );
     for (name, v) in [
         ("per sweep", &timings.total),

@@ -1,5 +1,6 @@
-//! The chain as a user runs it: `glintd demo` end to end, and a separate `glintd echo` process
-//! receiving every pose a `glintd replay` publishes, in order.
+//! The chain as a user runs it: `glintd demo` end to end, a separate `glintd echo` process
+//! receiving every pose a `glintd replay` publishes, in order, `glintd bench`, and `replay`
+//! taking its parameters from a daemon configuration.
 
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
@@ -124,4 +125,102 @@ fn a_separate_subscriber_receives_the_published_poses_in_order() {
         assert_eq!(w[1], w[0] + 1, "no gap, no reordering: {sequences:?}");
     }
     std::fs::remove_dir_all(out).unwrap();
+}
+
+/// A short simulated warehouse capture in `dir`.
+fn simulate(dir: &std::path::Path, seconds: &str) -> PathBuf {
+    let o = glintd()
+        .args([
+            "sim",
+            "warehouse",
+            "--seed",
+            "6",
+            "--seconds",
+            seconds,
+            "--out",
+        ])
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    dir.join("scan.pcap")
+}
+
+#[test]
+fn bench_times_every_stage_on_one_thread() {
+    let dir = scratch("bench");
+    let capture = simulate(&dir, "3");
+    let o = glintd().arg("bench").arg(&capture).output().unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let sweeps: usize = text
+        .split_whitespace()
+        .next()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no sweep count: {text}"));
+    assert!((25..=31).contains(&sweeps), "{text}");
+    assert!(text.contains("with intensity"), "{text}");
+    for stage in [
+        "per sweep: median",
+        "calibration + features: median",
+        "deskew: median",
+        "alignment: median",
+        "map update: median",
+    ] {
+        assert!(text.contains(stage), "{stage} missing: {text}");
+    }
+    let geometry = glintd()
+        .arg("bench")
+        .arg(&capture)
+        .arg("--no-intensity")
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&geometry.stdout).contains("geometry only"));
+    let missing = glintd()
+        .args(["bench", "/nonexistent/capture.pcap"])
+        .output()
+        .unwrap();
+    assert!(!missing.status.success());
+    assert!(String::from_utf8_lossy(&missing.stderr).contains("capture.pcap"));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn replay_takes_its_parameters_from_a_daemon_config() {
+    let dir = scratch("replay-config");
+    let capture = simulate(&dir, "3");
+    let replay = |config: &str| {
+        let path = dir.join("glintd.toml");
+        std::fs::write(&path, config).unwrap();
+        glintd()
+            .arg("replay")
+            .arg(&capture)
+            .args(["--no-publish", "--config"])
+            .arg(&path)
+            .output()
+            .unwrap()
+    };
+    let defaults = replay("");
+    let text = String::from_utf8_lossy(&defaults.stdout);
+    assert!(defaults.status.success(), "{text}");
+    assert!(
+        text.contains("with intensity") && text.contains("back end:"),
+        "{text}"
+    );
+    let ablation = replay("[pipeline]\nintensity = false\nloop_closure = false\n");
+    let text = String::from_utf8_lossy(&ablation.stdout);
+    assert!(ablation.status.success(), "{text}");
+    assert!(
+        text.contains("geometry only") && !text.contains("back end:"),
+        "{text}"
+    );
+    let wrong = replay("[odometry.solver]\nouter_iteration = 3\n");
+    assert!(!wrong.status.success());
+    let message = String::from_utf8_lossy(&wrong.stderr);
+    assert!(message.contains("outer_iteration"), "{message}");
+    std::fs::remove_dir_all(dir).unwrap();
 }
