@@ -173,10 +173,10 @@ fn yard_loop_closes() {
     let seconds = lap_seconds(Scenario::Yard, seed) + 8.0;
     let r = run(Scenario::Yard, seed, seconds, &BackEndConfig::default());
     // The ATE bar (SLAM ≤ max(½ odometry, 5 cm)) is not met here and not asserted
-    // (0.356 m odometry, 0.347 m SLAM): the loops at the end of the lap fix the lap's end, and
+    // (0.320 m odometry, 0.338 m SLAM): the loops at the end of the lap fix the lap's end, and
     // the graph spreads that correction along the lap by the odometry edges' weights, which
     // does not undo the error in the middle of the lap where the ATE comes from. What is
-    // asserted is the return to the start: 0.545 m off by odometry alone, 0.051 m with
+    // asserted is the return to the start: 0.327 m off by odometry alone, 0.039 m with
     // SLAM.
     let f = check_closed_loop("yard seed 8", &r);
     assert!(
