@@ -16,7 +16,7 @@ use crate::scan::Scan;
 const MIN_BASELINE: f32 = 0.2;
 /// The ring steps tried along a ring, out to 20: sparser farther out, so a near wall (which
 /// needs all 20 to approach the baseline) costs 9 distance tests instead of 20, and where the
-/// baseline is reached sooner it ends at most a third longer than the nearest step past it.
+/// baseline is reached sooner the chosen step is at most half again the first one past it.
 const RING_STEPS: [usize; 9] = [1, 2, 3, 4, 6, 8, 11, 15, 20];
 /// The ring steps tried across rings.
 const ACROSS_STEPS: [usize; 2] = [1, 2];

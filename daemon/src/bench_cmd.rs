@@ -1,17 +1,17 @@
 //! `glintd bench`: the odometry's compute time per sweep on one thread, without the pipeline's
-//! threads, queues or publishing. Every sweep of a capture is decoded into memory first, then
-//! calibration + features and registration run back to back on the calling thread, each stage
-//! timed. Pin it to one core with `taskset -c N` for the one-core figure.
+//! threads, queues or publishing. Each sweep of a capture is decoded (untimed), then calibration +
+//! features and registration run back to back on the calling thread, each stage timed. Pin it to
+//! one core with `taskset -c N` for the one-core figure.
 
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
 use clap::Args;
 use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
 use glint_core::odometry::{FrontEnd, Odometry, Stage};
-use glint_core::scan::{Scan, ScanPoint};
+use glint_core::scan::Scan;
 
 use crate::capture::{self, SensorArgs};
 use crate::config::DaemonConfig;
@@ -27,71 +27,52 @@ pub struct BenchArgs {
     /// Odometry parameters from a daemon configuration (as `glintd run --config`).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Run the whole capture this many times (the first run is also timed: its maps start empty
-    /// just as a real start's do).
+    /// Run the whole capture this many times, each from empty maps (as a real start), and time
+    /// them all.
     #[arg(long, default_value_t = 1)]
     pub repeat: usize,
     #[command(flatten)]
     pub sensor: SensorArgs,
 }
 
-/// One decoded sweep.
-struct Input {
-    points: Vec<ScanPoint>,
-    rings: usize,
-    reference_ns: u64,
-}
-
 /// Runs the command.
 pub fn run(args: BenchArgs) -> Result<()> {
-    let daemon = match &args.config {
-        Some(path) => DaemonConfig::load(path)?,
-        None => DaemonConfig::default(),
-    };
+    let daemon = DaemonConfig::load_or_default(args.config.as_deref())?;
     let config: OdometryConfig = if args.no_intensity {
         daemon.odometry.without_intensity()
     } else {
         daemon.odometry
     };
-    let mut sweeps = Vec::new();
-    capture::replay(&args.capture, &args.sensor, |sweep| {
-        let Some(reference_ns) = sweep.points.last().map(|p| p.time_ns) else {
-            return Ok(());
-        };
-        let mut points = Vec::new();
-        scan_points(sweep, &mut points);
-        let rings = points
-            .iter()
-            .map(|p| usize::from(p.ring) + 1)
-            .max()
-            .unwrap_or(16);
-        sweeps.push(Input {
-            points,
-            rings,
-            reference_ns,
-        });
-        Ok(())
-    })?;
-    if sweeps.is_empty() {
-        bail!("{} holds no sweep", args.capture.display());
-    }
     let mut front = Vec::new();
     let mut deskew = Vec::new();
     let mut align = Vec::new();
     let mut map = Vec::new();
     let mut total = Vec::new();
-    let started = Instant::now();
+    let mut sweeps = 0;
+    let mut busy = Duration::ZERO;
     for _ in 0..args.repeat.max(1) {
         let mut front_end = FrontEnd::new(&config);
         let mut odometry = Odometry::new(&config);
         let mut features = SweepFeatures::default();
-        for sweep in &sweeps {
+        let mut points = Vec::new();
+        sweeps = 0;
+        let report = capture::replay(&args.capture, &args.sensor, |sweep| {
+            let Some(reference_ns) = sweep.points.last().map(|p| p.time_ns) else {
+                return Ok(());
+            };
+            // Decoding is not timed: only what the odometry does with a decoded sweep.
+            scan_points(sweep, &mut points);
+            let rings = points
+                .iter()
+                .map(|p| usize::from(p.ring) + 1)
+                .max()
+                .unwrap_or(16);
             let t0 = Instant::now();
             front_end.process(
                 &Scan {
-                    points: &sweep.points,
-                    rings: sweep.rings,
-                    reference_ns: sweep.reference_ns,
+                    points: &points,
+                    rings,
+                    reference_ns,
                 },
                 &mut features,
             );
@@ -109,9 +90,17 @@ pub fn run(args: BenchArgs) -> Result<()> {
             });
             front.push((t1 - t0).as_secs_f64() * 1e3);
             total.push((last - t0).as_secs_f64() * 1e3);
+            busy += last - t0;
+            sweeps += 1;
+            Ok(())
+        })?;
+        if let Some(damage) = report.damage {
+            say!("the capture is damaged ({damage}): timing the {sweeps} sweeps before it");
         }
     }
-    let wall = started.elapsed().as_secs_f64();
+    if sweeps == 0 {
+        bail!("{} holds no sweep", args.capture.display());
+    }
     let line = |name: &str, v: &mut Vec<f64>| {
         if !v.is_empty() {
             say!(
@@ -122,15 +111,15 @@ pub fn run(args: BenchArgs) -> Result<()> {
         }
     };
     say!(
-        "{} sweeps × {} on one thread ({}): {:.1} sweeps/s",
-        sweeps.len(),
+        "{} sweeps × {} on one thread ({}): {:.1} sweeps/s of odometry compute",
+        sweeps,
         args.repeat.max(1),
         if config.solver.use_intensity {
             "with intensity"
         } else {
             "geometry only"
         },
-        total.len() as f64 / wall
+        total.len() as f64 / busy.as_secs_f64().max(1e-9)
     );
     line("per sweep", &mut total);
     line("calibration + features", &mut front);

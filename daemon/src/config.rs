@@ -185,6 +185,11 @@ impl DaemonConfig {
         Self::parse(&text).with_context(|| format!("in {}", path.display()))
     }
 
+    /// [`Self::load`] when a path is given, the defaults otherwise.
+    pub fn load_or_default(path: Option<&Path>) -> Result<Self> {
+        path.map_or_else(|| Ok(Self::default()), Self::load)
+    }
+
     /// Parses and validates a configuration text.
     pub fn parse(text: &str) -> Result<Self> {
         // toml's message names the key and shows the line (unknown field, wrong type).

@@ -84,10 +84,7 @@ fn read_tum(path: &std::path::Path) -> Result<Vec<StampedPose>> {
 
 /// Runs the command.
 pub fn run(args: ReplayArgs) -> Result<()> {
-    let daemon = match &args.config {
-        Some(path) => DaemonConfig::load(path)?,
-        None => DaemonConfig::default(),
-    };
+    let daemon = DaemonConfig::load_or_default(args.config.as_deref())?;
     let config = if args.no_intensity {
         daemon.odometry.clone().without_intensity()
     } else {
