@@ -11,11 +11,10 @@ use clap::Args;
 use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
 use glint_core::odometry::{FrontEnd, Odometry, Stage};
-use glint_core::scan::Scan;
 
 use crate::capture::{self, SensorArgs};
 use crate::config::DaemonConfig;
-use crate::pipeline::{quantile, scan_points};
+use crate::pipeline::{quantile, scan_of};
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -57,25 +56,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
         let mut points = Vec::new();
         sweeps = 0;
         let report = capture::replay(&args.capture, &args.sensor, |sweep| {
-            let Some(reference_ns) = sweep.points.last().map(|p| p.time_ns) else {
+            // Decoding is not timed: only what the odometry does with a decoded sweep.
+            let Some(scan) = scan_of(sweep, &mut points) else {
                 return Ok(());
             };
-            // Decoding is not timed: only what the odometry does with a decoded sweep.
-            scan_points(sweep, &mut points);
-            let rings = points
-                .iter()
-                .map(|p| usize::from(p.ring) + 1)
-                .max()
-                .unwrap_or(16);
             let t0 = Instant::now();
-            front_end.process(
-                &Scan {
-                    points: &points,
-                    rings,
-                    reference_ns,
-                },
-                &mut features,
-            );
+            front_end.process(&scan, &mut features);
             let t1 = Instant::now();
             let mut last = t1;
             odometry.register(&features, |stage| {

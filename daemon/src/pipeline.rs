@@ -751,8 +751,11 @@ fn receive_live(
     Ok(())
 }
 
-/// Converts a driver sweep to the odometry's input.
-pub fn scan_points(sweep: &Sweep, out: &mut Vec<ScanPoint>) {
+/// Converts a driver sweep to the odometry's input, its points written into `out`; `None` for
+/// an empty sweep. The reference time is the sweep's last return; the ring count is whatever
+/// the sweep holds (16 for the VLP-16 family, 32 for the HDL-32E).
+pub fn scan_of<'a>(sweep: &Sweep, out: &'a mut Vec<ScanPoint>) -> Option<Scan<'a>> {
+    let reference_ns = sweep.points.last()?.time_ns;
     out.clear();
     out.extend(sweep.points.iter().map(|p| ScanPoint {
         position: [p.x, p.y, p.z],
@@ -760,6 +763,16 @@ pub fn scan_points(sweep: &Sweep, out: &mut Vec<ScanPoint>) {
         reflectivity: p.reflectivity,
         ring: p.ring,
     }));
+    let rings = out
+        .iter()
+        .map(|p| usize::from(p.ring) + 1)
+        .max()
+        .unwrap_or(16);
+    Some(Scan {
+        points: out,
+        rings,
+        reference_ns,
+    })
 }
 
 fn run_front_end(
@@ -771,31 +784,16 @@ fn run_front_end(
     let mut front_end = FrontEnd::new(config);
     let mut points = Vec::new();
     while let Some(arrival) = recv_beating(input, heartbeats, Heartbeats::FRONT_END) {
-        let Some(reference_ns) = arrival.sweep.points.last().map(|p| p.time_ns) else {
-            continue;
-        };
         let start = Instant::now();
-        scan_points(&arrival.sweep, &mut points);
-        // 16 rings for the VLP-16 family, 32 for the HDL-32E: whatever the sweep holds.
-        let rings = arrival
-            .sweep
-            .points
-            .iter()
-            .map(|p| usize::from(p.ring) + 1)
-            .max()
-            .unwrap_or(16);
+        let scan = scan_of(&arrival.sweep, &mut points);
         if let Some(r) = &arrival.recycler {
             r.recycle(arrival.sweep);
         }
+        let Some(scan) = scan else {
+            continue;
+        };
         let mut features = SweepFeatures::default();
-        front_end.process(
-            &Scan {
-                points: &points,
-                rings,
-                reference_ns,
-            },
-            &mut features,
-        );
+        front_end.process(&scan, &mut features);
         let message = Featured {
             features,
             received: arrival.received,
