@@ -20,6 +20,8 @@ pub struct ScanContext {
     /// Each column's Euclidean norm (0 for an empty column).
     norms: Vec<f32>,
     ring_key: Vec<f32>,
+    /// The ring key's Euclidean norm (at least 1e-6), which every ring-key comparison divides by.
+    ring_key_norm: f32,
 }
 
 /// The best match between two descriptors.
@@ -64,15 +66,17 @@ impl ScanContext {
             .chunks_exact(rings)
             .map(|c| c.iter().map(|v| v * v).sum::<f32>().sqrt())
             .collect();
-        let ring_key = (0..rings)
+        let ring_key: Vec<f32> = (0..rings)
             .map(|k| (0..sectors).map(|s| cells[s * rings + k]).sum::<f32>() / sectors as f32)
             .collect();
+        let ring_key_norm = ring_key.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-6);
         Self {
             sectors,
             rings,
             cells,
             norms,
             ring_key,
+            ring_key_norm,
         }
     }
 
@@ -89,20 +93,7 @@ impl ScanContext {
     /// Squared distance between two ring keys, each scaled to unit norm so that overall
     /// brightness (sensor gain, distance to walls) matters less than the profile.
     pub fn ring_key_distance(&self, other: &ScanContext) -> f32 {
-        let na = self
-            .ring_key
-            .iter()
-            .map(|v| v * v)
-            .sum::<f32>()
-            .sqrt()
-            .max(1e-6);
-        let nb = other
-            .ring_key
-            .iter()
-            .map(|v| v * v)
-            .sum::<f32>()
-            .sqrt()
-            .max(1e-6);
+        let (na, nb) = (self.ring_key_norm, other.ring_key_norm);
         self.ring_key
             .iter()
             .zip(&other.ring_key)
