@@ -137,6 +137,10 @@ pub struct LocalMapConfig {
     pub min_spacing: f32,
     /// Cells farther than this from the robot are dropped, m.
     pub radius: f32,
+    /// Plane points whose residual weight (`solver.angular_noise`) is below this do not enter
+    /// the map: seen at a grazing angle from far away, a sweep's small tilt lifts them by
+    /// decimetres, and the map would keep that error.
+    pub min_plane_weight: f64,
 }
 
 impl Default for LocalMapConfig {
@@ -146,6 +150,7 @@ impl Default for LocalMapConfig {
             points_per_cell: 20,
             min_spacing: 0.2,
             radius: 80.0,
+            min_plane_weight: 0.1,
         }
     }
 }
@@ -169,6 +174,15 @@ pub struct SolverConfig {
     pub plane_tolerance: f64,
     /// Huber threshold of the geometric residuals, m.
     pub huber_geometric: f64,
+    /// Noise of a point-to-plane residual on a surface seen head-on, m (range noise and the
+    /// map's plane fit).
+    pub plane_noise: f64,
+    /// Angular error of a return's ray, rad: vibration within a sweep that the constant-velocity
+    /// deskew cannot follow, the beam's divergence. Plane residuals are weighted by
+    /// plane_noise² / (plane_noise² + (|p × n|·angular_noise)²), so ground far away at a grazing
+    /// angle, which a small tilt lifts by decimetres, does not steer the tilt. 0 weighs every
+    /// plane alike.
+    pub angular_noise: f64,
     /// Use the intensity residual.
     pub use_intensity: bool,
     /// Weight turning reflectivity units into the metres of the geometric residuals. Larger
@@ -214,6 +228,8 @@ impl Default for SolverConfig {
             line_ratio: 3.0,
             plane_tolerance: 0.05,
             huber_geometric: 0.1,
+            plane_noise: 0.02,
+            angular_noise: 0.002,
             use_intensity: true,
             intensity_weight: 0.003,
             huber_intensity: 0.1,
@@ -417,6 +433,12 @@ impl OdometryConfig {
             "must be finite and > local_map.cell",
         )?;
         check(
+            "local_map.min_plane_weight",
+            l.min_plane_weight,
+            l.min_plane_weight.is_finite() && (0.0..=1.0).contains(&l.min_plane_weight),
+            "must be in [0, 1]",
+        )?;
+        check(
             "solver.outer_iterations",
             s.outer_iterations,
             s.outer_iterations > 0,
@@ -457,6 +479,18 @@ impl OdometryConfig {
             s.huber_geometric,
             pos64(s.huber_geometric),
             positive,
+        )?;
+        check(
+            "solver.plane_noise",
+            s.plane_noise,
+            pos64(s.plane_noise),
+            positive,
+        )?;
+        check(
+            "solver.angular_noise",
+            s.angular_noise,
+            s.angular_noise.is_finite() && s.angular_noise >= 0.0,
+            "must be a finite number >= 0",
         )?;
         check(
             "solver.intensity_weight",

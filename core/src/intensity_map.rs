@@ -1,18 +1,42 @@
-//! Step 3 of the method: the intensity map. A sparse voxel grid (hash map keyed by integer
-//! cell) holding the running mean of calibrated reflectivity, `M ← M + (η − M)/n` with `n`
-//! capped so the map can follow changes. Lookups interpolate trilinearly between the eight cell
-//! centres around a point — with the weights the paper misprinted corrected — over observed
-//! cells only (weights renormalised), and return the analytic gradient for the solver.
+//! Step 3 of the method: the intensity map. A sparse voxel grid holding the running mean of
+//! calibrated reflectivity, `M ← M + (η − M)/n` with `n` capped so the map can follow changes.
+//! Lookups interpolate trilinearly between the eight cell centres around a point — with the
+//! weights the paper misprinted corrected — over observed cells only (weights renormalised),
+//! and return the analytic gradient for the solver.
+//!
+//! Cells are stored in blocks of 4 × 4 × 4 behind one hash lookup a block: a lookup's eight
+//! cells and a sweep's successive returns mostly fall in one block, so a cell costs an array
+//! read instead of a hash probe into a table too large for the cache (a 0.2 m grid over an
+//! 80 m radius). Per cell hashing was a fifth of the odometry's time.
 
 use nalgebra::Vector3;
 use rustc_hash::FxHashMap;
 
 use crate::config::IntensityMapConfig;
 
-#[derive(Debug, Clone, Copy)]
-struct Cell {
-    mean: f32,
-    count: u16,
+/// Cells per block edge.
+const BLOCK: i32 = 4;
+const BLOCK_CELLS: usize = (BLOCK * BLOCK * BLOCK) as usize;
+
+/// A block's cells: running means and their counts (0 = never observed).
+#[derive(Debug, Clone)]
+struct Block {
+    mean: [f32; BLOCK_CELLS],
+    count: [u16; BLOCK_CELLS],
+}
+
+impl Block {
+    const EMPTY: Self = Self {
+        mean: [0.0; BLOCK_CELLS],
+        count: [0; BLOCK_CELLS],
+    };
+}
+
+/// The block holding cell `cell`, and the cell's index inside it.
+fn split(cell: [i32; 3]) -> ([i32; 3], usize) {
+    let block = cell.map(|v| v.div_euclid(BLOCK));
+    let [x, y, z] = cell.map(|v| v.rem_euclid(BLOCK) as usize);
+    (block, x + BLOCK as usize * (y + BLOCK as usize * z))
 }
 
 /// Reflectivity per voxel. See the module docs.
@@ -21,7 +45,12 @@ pub struct IntensityMap {
     voxel: f32,
     max_count: u16,
     min_weight: f32,
-    cells: FxHashMap<[i32; 3], Cell>,
+    /// Block key → index into `blocks`.
+    index: FxHashMap<[i32; 3], u32>,
+    /// Per block: its key and its cells.
+    blocks: Vec<([i32; 3], Block)>,
+    /// Observed cells.
+    cells: usize,
 }
 
 /// The eight cells around the last lookup (their means, `None` where unobserved), for
@@ -48,18 +77,20 @@ impl IntensityMap {
             voxel: config.voxel,
             max_count: config.max_count.max(1),
             min_weight: config.min_weight,
-            cells: FxHashMap::default(),
+            index: FxHashMap::default(),
+            blocks: Vec::new(),
+            cells: 0,
         }
     }
 
     /// Cells stored.
     pub fn len(&self) -> usize {
-        self.cells.len()
+        self.cells
     }
 
     /// Whether nothing is stored.
     pub fn is_empty(&self) -> bool {
-        self.cells.is_empty()
+        self.cells == 0
     }
 
     fn key(&self, p: &Vector3<f32>) -> [i32; 3] {
@@ -75,13 +106,38 @@ impl IntensityMap {
         if !eta.is_finite() || !p.iter().all(|v| v.is_finite()) {
             return;
         }
-        let max = self.max_count;
-        let cell = self.cells.entry(self.key(p)).or_insert(Cell {
-            mean: eta,
-            count: 0,
-        });
-        cell.count = (cell.count + 1).min(max);
-        cell.mean += (eta - cell.mean) / f32::from(cell.count);
+        let (key, at) = split(self.key(p));
+        let block = match self.index.get(&key) {
+            Some(&b) => b as usize,
+            None => {
+                self.index.insert(key, self.blocks.len() as u32);
+                self.blocks.push((key, Block::EMPTY));
+                self.blocks.len() - 1
+            }
+        };
+        let block = &mut self.blocks[block].1;
+        let count = &mut block.count[at];
+        if *count == 0 {
+            self.cells += 1;
+            block.mean[at] = eta;
+        }
+        *count = (*count + 1).min(self.max_count);
+        block.mean[at] += (eta - block.mean[at]) / f32::from(*count);
+    }
+
+    /// The mean of cell `cell`, if observed; `last` caches the most recent block looked up.
+    fn cell_mean(&self, cell: [i32; 3], last: &mut Option<([i32; 3], Option<u32>)>) -> Option<f32> {
+        let (key, at) = split(cell);
+        let block = match *last {
+            Some((k, b)) if k == key => b,
+            _ => {
+                let b = self.index.get(&key).copied();
+                *last = Some((key, b));
+                b
+            }
+        }?;
+        let block = &self.blocks[block as usize].1;
+        (block.count[at] > 0).then_some(block.mean[at])
     }
 
     /// The interpolated reflectivity at `p` and its gradient, if enough of the eight
@@ -97,24 +153,27 @@ impl IntensityMap {
     pub fn sample_near(&self, p: &Vector3<f64>, corners: &mut Corners) -> Option<IntensitySample> {
         let s = f64::from(self.voxel);
         // Cell centres sit at (i + ½)·s: the lower corner of the bracketing cube is i0.
-        let u = p / s - Vector3::repeat(0.5);
+        let u = p * (1.0 / s) - Vector3::repeat(0.5);
         let i0 = u.map(f64::floor);
         let t = u - i0;
         let base = [i0.x as i32, i0.y as i32, i0.z as i32];
         if corners.base != Some(base) {
             corners.base = Some(base);
+            let mut last = None;
             for (corner, mean) in corners.means.iter_mut().enumerate() {
                 let (a, b, c) = (
                     corner as i32 & 1,
                     (corner as i32 >> 1) & 1,
                     corner as i32 >> 2,
                 );
-                *mean = self
-                    .cells
-                    .get(&[base[0] + a, base[1] + b, base[2] + c])
-                    .map(|cell| cell.mean);
+                *mean = self.cell_mean([base[0] + a, base[1] + b, base[2] + c], &mut last);
             }
         }
+        // Per axis, the weights of the lower and upper corner, w₀(t) = 1 − t and w₁(t) = t (the
+        // paper printed t for both), and their derivatives ∓1/s.
+        let inv = 1.0 / s;
+        let w = [[1.0 - t.x, t.x], [1.0 - t.y, t.y], [1.0 - t.z, t.z]];
+        let dw = [-inv, inv];
         let mut weight = 0.0;
         let mut value = 0.0;
         let mut d_weight = Vector3::zeros();
@@ -124,12 +183,9 @@ impl IntensityMap {
                 continue;
             };
             let (a, b, c) = (corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
-            // w₀(t) = 1 − t, w₁(t) = t per axis (the paper printed t for both).
-            let w = |bit: usize, t: f64| if bit == 1 { t } else { 1.0 - t };
-            let dw = |bit: usize| if bit == 1 { 1.0 / s } else { -1.0 / s };
-            let (wx, wy, wz) = (w(a, t.x), w(b, t.y), w(c, t.z));
+            let (wx, wy, wz) = (w[0][a], w[1][b], w[2][c]);
             let wk = wx * wy * wz;
-            let grad = Vector3::new(dw(a) * wy * wz, wx * dw(b) * wz, wx * wy * dw(c));
+            let grad = Vector3::new(dw[a] * wy * wz, wx * dw[b] * wz, wx * wy * dw[c]);
             let m = f64::from(*mean);
             weight += wk;
             value += wk * m;
@@ -143,18 +199,31 @@ impl IntensityMap {
         // Quotient rule on Σwₖmₖ / Σwₖ.
         Some(IntensitySample {
             value: mean,
-            gradient: (d_value - d_weight * mean) / weight,
+            gradient: (d_value - d_weight * mean) * (1.0 / weight),
         })
     }
 
-    /// Drops cells farther than `radius` from `center` (horizontally and vertically), so memory
-    /// stays flat on an endless run.
+    /// Drops blocks farther than `radius` from `center` (horizontally and vertically), so
+    /// memory stays flat on an endless run. The kept blocks keep their order.
     pub fn retain_near(&mut self, center: &Vector3<f32>, radius: f32) {
-        let c = self.key(center);
-        let r = (radius / self.voxel).ceil() as i32;
-        self.cells.retain(|k, _| {
-            (k[0] - c[0]).abs() <= r && (k[1] - c[1]).abs() <= r && (k[2] - c[2]).abs() <= r
+        let (c, _) = split(self.key(center));
+        let r = (radius / (self.voxel * BLOCK as f32)).ceil() as i32;
+        let near = |k: &[i32; 3]| (0..3).all(|a| (k[a] - c[a]).abs() <= r);
+        let (before, mut dropped) = (self.blocks.len(), 0);
+        self.blocks.retain(|(k, block)| {
+            let keep = near(k);
+            if !keep {
+                dropped += block.count.iter().filter(|&&n| n > 0).count();
+            }
+            keep
         });
+        self.cells -= dropped;
+        if self.blocks.len() != before {
+            self.index.clear();
+            for (i, (k, _)) in self.blocks.iter().enumerate() {
+                self.index.insert(*k, i as u32);
+            }
+        }
     }
 }
 

@@ -202,6 +202,7 @@ mod tests {
             points_per_cell: 20,
             min_spacing: 0.1,
             radius: 10.0,
+            ..LocalMapConfig::default()
         }
     }
 

@@ -18,6 +18,7 @@ use crate::intensity_map::IntensityMap;
 use crate::local_map::LocalMap;
 use crate::scan::Scan;
 use crate::se3::{exp, log};
+use crate::solver::angular_weight;
 use crate::solver::{align, Alignment, AlignmentInput, IntensityPoint, MapView};
 
 /// Steps 1–2 for one sweep: calibration and feature selection. Independent of the motion, so
@@ -348,8 +349,21 @@ impl Odometry {
         for p in &self.input.edges {
             self.edges.insert((pose * Point3::from(*p)).coords.cast());
         }
-        for p in &self.input.planes {
-            self.planes.insert((pose * Point3::from(*p)).coords.cast());
+        // A plane point an angular error would move far off its surface (ground seen far away
+        // at a grazing angle) would carry that sweep's tilt into the map, where every later
+        // sweep near it is matched to it: it stays out, and the surface enters the map when
+        // the robot sees it closer.
+        let min_weight = self.config.local_map.min_plane_weight;
+        for (p, f) in self.input.planes.iter().zip(&features.planes) {
+            let normal = Vector3::from(f.normal).cast::<f64>();
+            let lever_sq = if normal == Vector3::zeros() {
+                p.norm_squared()
+            } else {
+                p.cross(&normal).norm_squared()
+            };
+            if angular_weight(lever_sq, &self.config.solver) >= min_weight {
+                self.planes.insert((pose * Point3::from(*p)).coords.cast());
+            }
         }
         for (p, eta) in place_calibrated(features, &self.velocity, pose) {
             self.intensity.insert(&p, eta);

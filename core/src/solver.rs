@@ -86,6 +86,9 @@ struct Model {
     point: Vector3<f64>,
     center: Vector3<f64>,
     shape: Shape,
+    /// The residual's weight: its noise at a frontal surface over its noise here, squared
+    /// (see [`SolverConfig::angular_noise`]).
+    weight: f64,
 }
 
 /// What a neighbourhood was fitted as.
@@ -349,7 +352,7 @@ impl Links {
                 continue;
             }
             self.at[i] = q;
-            self.models[i] = associate(p, &q, map, config, neighbours, &fit);
+            self.models[i] = associate(pose, p, &q, map, config, neighbours, &fit);
         }
     }
 
@@ -364,6 +367,7 @@ impl Links {
 /// Fits a model for the point `p` (sensor frame), seen at `q` (world), to its nearest map
 /// neighbours.
 fn associate(
+    pose: &Isometry3<f64>,
     p: &Vector3<f64>,
     q: &Vector3<f64>,
     map: &LocalMap,
@@ -385,7 +389,37 @@ fn associate(
         point: *p,
         center,
         shape,
+        weight: residual_weight(pose, p, &shape, config),
     })
+}
+
+/// A plane residual's weight from how much an angular error of the ray moves the point off the
+/// plane. An angular error δ (the sweep's vibration and residual motion, the beam's width)
+/// displaces a return at range r by r·δ across its ray, and the plane sees the part along its
+/// normal, r·δ·sin α at incidence α: |p × n|·δ. Range noise σ adds along the ray (taken whole,
+/// the map's own plane fit included), so the residual's variance is σ² + (|p × n|·δ)², and the
+/// weight σ² over that: 1 on a wall seen head-on, small for ground seen far away at a grazing
+/// angle, which a tilt of the sensor lifts by metres.
+fn residual_weight(
+    pose: &Isometry3<f64>,
+    p: &Vector3<f64>,
+    shape: &Shape,
+    config: &SolverConfig,
+) -> f64 {
+    let direction = match shape {
+        Shape::Plane(n) => n,
+        Shape::Line(d) => d,
+    };
+    let local = pose.rotation.inverse_transform_vector(direction);
+    angular_weight(p.cross(&local).norm_squared(), config)
+}
+
+/// The weight σ² / (σ² + lever²·δ²) of a residual whose point (sensor frame) moves `lever` m per
+/// radian of ray error: |p × n| for a plane with normal n, |p × d| for a line along d (the
+/// part of an angular error that leaves the line). See [`residual_weight`].
+pub fn angular_weight(lever_sq: f64, config: &SolverConfig) -> f64 {
+    let noise = config.plane_noise * config.plane_noise;
+    noise / (noise + lever_sq * config.angular_noise * config.angular_noise)
 }
 
 /// Lines: the neighbours must spread along one direction (largest eigenvalue dominant); the
@@ -561,10 +595,12 @@ fn build(
         let q = (pose * Point3::from(m.point)).coords;
         match m.shape {
             Shape::Plane(n) => {
-                let e = n.dot(&(q - m.center));
+                let scale = m.weight.sqrt();
+                let e = scale * n.dot(&(q - m.center));
                 let (w, cost) = huber(e.abs(), config.huber_geometric);
                 // ∂q/∂δ = [−[q]×, I], so ∂e/∂δ = nᵀ·[−[q]×, I] = [(q × n)ᵀ, nᵀ].
-                let arm = q.cross(&n);
+                let arm = scale * q.cross(&n);
+                let n = scale * n;
                 let j = Vector6::new(arm.x, arm.y, arm.z, n.x, n.y, n.z);
                 s.hessian.ger(w, &j, &j, 1.0);
                 s.gradient.axpy(w * e, &j, 1.0);
@@ -573,16 +609,18 @@ fn build(
                 s.planes += 1;
             }
             Shape::Line(d) => {
-                let projection = Matrix3::identity() - d * d.transpose();
+                let projection = m.weight.sqrt() * (Matrix3::identity() - d * d.transpose());
                 let e = projection * (q - m.center);
                 let (w, cost) = huber(e.norm(), config.huber_geometric);
-                // ∂q/∂δ = [−[q]×, I]; ∂e/∂δ = P·[−[q]×, I].
-                let j_rot = -projection * skew(&q);
-                let mut j = nalgebra::Matrix3x6::zeros();
-                j.fixed_view_mut::<3, 3>(0, 0).copy_from(&j_rot);
-                j.fixed_view_mut::<3, 3>(0, 3).copy_from(&projection);
-                s.hessian += w * j.transpose() * j;
-                s.gradient += w * j.transpose() * e;
+                // ∂q/∂δ = [−[q]×, I]; ∂e/∂δ = P·[−[q]×, I], one row per axis of the residual.
+                // Row i of P·[−[q]×, I] is [(q × Pᵢ)ᵀ, Pᵢᵀ] (P symmetric).
+                for i in 0..3 {
+                    let row = projection.column(i).into_owned();
+                    let arm = q.cross(&row);
+                    let j = Vector6::new(arm.x, arm.y, arm.z, row.x, row.y, row.z);
+                    s.hessian.ger(w, &j, &j, 1.0);
+                    s.gradient.axpy(w * e[i], &j, 1.0);
+                }
                 s.cost += cost;
             }
         }
@@ -947,6 +985,7 @@ mod jacobian_tests {
                 point: Vector3::new(1.0, 2.0, 0.5),
                 center: Vector3::new(0.8, 2.5, 0.4),
                 shape,
+                weight: 0.37,
             };
             let map = IntensityMap::new(&IntensityMapConfig::default());
             let input = AlignmentInput::default();
@@ -960,5 +999,35 @@ mod jacobian_tests {
             let pose = exp(&Vector6::new(0.1, 0.2, -0.3, 0.5, 0.1, -0.2));
             assert_gradient_matches(cost, &pose, 1e-6);
         }
+    }
+
+    /// A wall seen head-on keeps its full weight whatever its range; ground seen at a grazing
+    /// angle loses weight with range, as r·δ outgrows the range noise; a line is weighted by the
+    /// same lever.
+    #[test]
+    fn residual_weights_follow_the_angular_lever() {
+        let config = SolverConfig::default();
+        let pose = exp(&Vector6::new(0.0, 0.0, 0.7, 1.0, -2.0, 0.3));
+        let world = |v: Vector3<f64>| pose.rotation * v;
+        let wall = Shape::Plane(world(Vector3::x()));
+        let ground = Shape::Plane(world(Vector3::z()));
+        let weight = |p: Vector3<f64>, shape: &Shape| residual_weight(&pose, &p, shape, &config);
+        assert!((weight(Vector3::new(40.0, 0.0, 0.0), &wall) - 1.0).abs() < 1e-12);
+        let near = weight(Vector3::new(3.0, 0.0, -0.9), &ground);
+        let far = weight(Vector3::new(30.0, 0.0, -0.9), &ground);
+        // σ² / (σ² + (30 m · δ)²) with σ = 2 cm, δ = 2 mrad: 0.1.
+        assert!((far - 0.0004 / (0.0004 + 0.0036)).abs() < 1e-3, "{far}");
+        assert!(near > 0.5 && near < 1.0, "{near}");
+        let pole = Shape::Line(world(Vector3::z()));
+        let w = weight(Vector3::new(30.0, 0.0, 0.0), &pole);
+        assert!((w - far).abs() < 1e-3, "{w}");
+        let flat = SolverConfig {
+            angular_noise: 0.0,
+            ..SolverConfig::default()
+        };
+        assert_eq!(
+            residual_weight(&pose, &Vector3::new(30.0, 0.0, -0.9), &ground, &flat),
+            1.0
+        );
     }
 }

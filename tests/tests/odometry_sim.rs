@@ -51,14 +51,14 @@ fn run(scenario: Scenario, seed: u64, seconds: f64, config: &OdometryConfig) -> 
 
 #[test]
 fn warehouse_odometry_with_intensity_stays_under_half_a_percent() {
-    let r = run(Scenario::Warehouse, 21, 40.0, &OdometryConfig::default());
+    let r = run(Scenario::Warehouse, 21, 60.0, &OdometryConfig::default());
     let pairs = associate(&r.estimates, &r.groundtruth);
-    assert!(pairs.len() > 350, "{} poses associated", pairs.len());
+    assert!(pairs.len() > 550, "{} poses associated", pairs.len());
     let drift = relative_errors(&pairs, &WAREHOUSE_LENGTHS).expect("segments fit");
     let ate = ate_rmse(&pairs).expect("poses");
     eprintln!("warehouse seed 21: {drift}; {ate}");
     assert!(drift.overall.translation_pct <= 0.5, "{drift}");
-    assert!(ate.rmse <= 0.10, "{ate}");
+    assert!(ate.rmse <= 0.06, "{ate}");
     assert!(
         r.statuses
             .iter()
@@ -69,17 +69,17 @@ fn warehouse_odometry_with_intensity_stays_under_half_a_percent() {
 }
 
 #[test]
-fn yard_odometry_with_intensity_stays_near_half_a_percent() {
-    // The open yard: long ranges, few edges. The floor is 0.5 %; the odometry measures
-    // 0.49–0.80 % over seeds 2, 7 and 11 today, so this pins that level against regressions.
+fn yard_odometry_with_intensity_stays_under_half_a_percent() {
+    // The open yard: long ranges, few edges, and ground seen far away at grazing angles, which
+    // steered the tilt until plane residuals were weighted by their angular lever.
     let r = run(Scenario::Yard, 19, 60.0, &OdometryConfig::default());
     let pairs = associate(&r.estimates, &r.groundtruth);
     assert!(pairs.len() > 550, "{} poses associated", pairs.len());
     let drift = relative_errors(&pairs, &WAREHOUSE_LENGTHS).expect("segments fit");
     let ate = ate_rmse(&pairs).expect("poses");
     eprintln!("yard seed 19: {drift}; {ate}");
-    assert!(drift.overall.translation_pct <= 0.8, "{drift}");
-    assert!(ate.rmse <= 0.15, "{ate}");
+    assert!(drift.overall.translation_pct <= 0.5, "{drift}");
+    assert!(ate.rmse <= 0.08, "{ate}");
     assert!(!r.statuses.contains(&TrackingStatus::Lost));
 }
 
@@ -99,11 +99,11 @@ fn replaying_the_same_packets_gives_the_same_poses_bit_for_bit() {
 fn in_the_corridor_intensity_holds_the_axis_geometry_cannot() {
     // The corridor runs along the scene's x axis; geometry constrains nothing along it.
     let axis = Vector3::x();
-    let with = run(Scenario::Corridor, 14, 40.0, &OdometryConfig::default());
+    let with = run(Scenario::Corridor, 14, 60.0, &OdometryConfig::default());
     let without = run(
         Scenario::Corridor,
         14,
-        40.0,
+        60.0,
         &OdometryConfig::geometry_only(),
     );
     let along = |r: &Run| {

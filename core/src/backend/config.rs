@@ -133,12 +133,15 @@ pub struct VerificationConfig {
 
 impl Default for VerificationConfig {
     fn default() -> Self {
+        // Every residual weighs alike here (no angular weighting): the loop's score and its
+        // `max_cost` were measured that way, and a keyframe's thinned cloud has few far returns.
         let coarse = SolverConfig {
             outer_iterations: 12,
             inner_iterations: 3,
             max_neighbour_distance: 2.0,
             plane_tolerance: 0.1,
             min_correspondences: 0,
+            angular_noise: 0.0,
             ..SolverConfig::default()
         };
         let fine = SolverConfig {
@@ -146,6 +149,7 @@ impl Default for VerificationConfig {
             inner_iterations: 3,
             max_neighbour_distance: 1.0,
             min_correspondences: 0,
+            angular_noise: 0.0,
             ..SolverConfig::default()
         };
         Self {
