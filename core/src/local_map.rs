@@ -4,9 +4,10 @@
 //! on an endless run. Nearest neighbours come from the 27 cells around the query, which bounds
 //! the search radius by one cell.
 //!
-//! The cells' points live in one flat array, `points_per_cell` slots a cell, so a search reads
-//! contiguous memory instead of chasing a heap allocation per cell; the hash only maps a cell's
-//! key to its slot. A search skips every one of the 27 cells whose box is farther than the
+//! The cells' points live in flat arrays, `points_per_cell` slots a cell, one array per
+//! coordinate, so a search reads contiguous memory instead of chasing a heap allocation per cell
+//! and a cell's distances are computed side by side (vectorised) before any is ranked; the hash
+//! only maps a cell's key to its slot. A search skips every one of the 27 cells whose box is farther than the
 //! current k-th neighbour: the answer is the exact k nearest, and a query in the middle of a
 //! surface reads two or three cells instead of nine.
 
@@ -17,6 +18,8 @@ use crate::config::LocalMapConfig;
 
 /// The most neighbours [`LocalMap::nearest`] returns.
 pub const MAX_NEIGHBOURS: usize = 8;
+/// Points whose distances [`LocalMap::nearest`] computes together.
+const CHUNK: usize = 16;
 
 /// Points around the robot. See the module docs.
 #[derive(Debug, Clone)]
@@ -28,8 +31,8 @@ pub struct LocalMap {
     index: FxHashMap<[i32; 3], u32>,
     /// Per slot: its cell's key and how many of its `per_cell` points are used.
     slots: Vec<([i32; 3], u32)>,
-    /// `per_cell` points per slot.
-    storage: Vec<Vector3<f32>>,
+    /// `per_cell` points per slot: x, y and z each in its own array.
+    storage: [Vec<f32>; 3],
     points: usize,
 }
 
@@ -42,7 +45,7 @@ impl LocalMap {
             min_spacing_sq: config.min_spacing * config.min_spacing,
             index: FxHashMap::default(),
             slots: Vec::new(),
-            storage: Vec::new(),
+            storage: [Vec::new(), Vec::new(), Vec::new()],
             points: 0,
         }
     }
@@ -65,10 +68,17 @@ impl LocalMap {
         ]
     }
 
-    /// The points of slot `slot`.
-    fn slot_points(&self, slot: usize) -> &[Vector3<f32>] {
+    /// The coordinates (x, y, z) of the points of slot `slot`.
+    fn slot_coordinates(&self, slot: usize) -> [&[f32]; 3] {
         let start = slot * self.per_cell;
-        &self.storage[start..start + self.slots[slot].1 as usize]
+        let end = start + self.slots[slot].1 as usize;
+        self.storage.each_ref().map(|axis| &axis[start..end])
+    }
+
+    /// The points of slot `slot`.
+    fn slot_points(&self, slot: usize) -> impl Iterator<Item = Vector3<f32>> + '_ {
+        let [x, y, z] = self.slot_coordinates(slot);
+        (0..x.len()).map(move |j| Vector3::new(x[j], y[j], z[j]))
     }
 
     /// Adds a world point unless its cell is full or it is too close to a point already there.
@@ -83,8 +93,9 @@ impl LocalMap {
                 let slot = self.slots.len();
                 self.index.insert(key, slot as u32);
                 self.slots.push((key, 0));
-                self.storage
-                    .resize(self.storage.len() + self.per_cell, Vector3::zeros());
+                for axis in &mut self.storage {
+                    axis.resize(axis.len() + self.per_cell, 0.0);
+                }
                 slot
             }
         };
@@ -92,12 +103,13 @@ impl LocalMap {
         if used >= self.per_cell
             || self
                 .slot_points(slot)
-                .iter()
                 .any(|q| (q - p).norm_squared() < self.min_spacing_sq)
         {
             return;
         }
-        self.storage[slot * self.per_cell + used] = p;
+        for (axis, v) in self.storage.iter_mut().zip(p.iter()) {
+            axis[slot * self.per_cell + used] = *v;
+        }
         self.slots[slot].1 += 1;
         self.points += 1;
     }
@@ -143,19 +155,33 @@ impl LocalMap {
                     let Some(&slot) = self.index.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
                         continue;
                     };
-                    for q in self.slot_points(slot as usize) {
-                        let d = (q - p).norm_squared();
-                        if d > max_sq || (found == k && d >= best[k - 1].0) {
-                            continue;
+                    let [xs, ys, zs] = self.slot_coordinates(slot as usize);
+                    for start in (0..xs.len()).step_by(CHUNK) {
+                        let end = (start + CHUNK).min(xs.len());
+                        // Distances first, in a loop the compiler vectorises; ranking after.
+                        let mut d = [f32::INFINITY; CHUNK];
+                        for (j, d) in d.iter_mut().enumerate().take(end - start) {
+                            let (dx, dy, dz) = (
+                                xs[start + j] - p.x,
+                                ys[start + j] - p.y,
+                                zs[start + j] - p.z,
+                            );
+                            *d = dx * dx + dy * dy + dz * dz;
                         }
-                        // Insertion into the sorted prefix.
-                        let mut at = found.min(k - 1);
-                        while at > 0 && best[at - 1].0 > d {
-                            best[at] = best[at - 1];
-                            at -= 1;
+                        for (j, &d) in d.iter().enumerate().take(end - start) {
+                            if d > max_sq || (found == k && d >= best[k - 1].0) {
+                                continue;
+                            }
+                            // Insertion into the sorted prefix.
+                            let q = Vector3::new(xs[start + j], ys[start + j], zs[start + j]);
+                            let mut at = found.min(k - 1);
+                            while at > 0 && best[at - 1].0 > d {
+                                best[at] = best[at - 1];
+                                at -= 1;
+                            }
+                            best[at] = (d, q);
+                            found = (found + 1).min(k);
                         }
-                        best[at] = (d, *q);
-                        found = (found + 1).min(k);
                     }
                 }
             }
@@ -181,14 +207,17 @@ impl LocalMap {
             }
             if kept != slot {
                 self.slots[kept] = (k, used);
-                self.storage
-                    .copy_within(slot * per..(slot + 1) * per, kept * per);
+                for axis in &mut self.storage {
+                    axis.copy_within(slot * per..(slot + 1) * per, kept * per);
+                }
                 self.index.insert(k, kept as u32);
             }
             kept += 1;
         }
         self.slots.truncate(kept);
-        self.storage.truncate(kept * per);
+        for axis in &mut self.storage {
+            axis.truncate(kept * per);
+        }
     }
 }
 
@@ -252,7 +281,7 @@ mod tests {
         // Keep only what the map stored (cells cap their points).
         let mut stored = Vec::new();
         for slot in 0..m.slots.len() {
-            stored.extend_from_slice(m.slot_points(slot));
+            stored.extend(m.slot_points(slot));
         }
         assert_eq!(stored.len(), m.len());
         let mut out = Vec::new();
@@ -271,7 +300,7 @@ mod tests {
         }
         // Eviction keeps the remaining cells searchable.
         m.retain_near(&Vector3::new(-3.0, -3.0, 0.0), 2.0);
-        let kept: usize = (0..m.slots.len()).map(|s| m.slot_points(s).len()).sum();
+        let kept: usize = (0..m.slots.len()).map(|s| m.slot_points(s).count()).sum();
         assert_eq!(kept, m.len());
         m.nearest(&Vector3::new(-2.5, -2.5, 0.5), 3, 0.9, &mut out);
         assert_eq!(out.len(), 3);

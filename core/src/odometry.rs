@@ -19,7 +19,9 @@ use crate::local_map::LocalMap;
 use crate::scan::Scan;
 use crate::se3::{exp, log};
 use crate::solver::angular_weight;
-use crate::solver::{align, Alignment, AlignmentInput, IntensityPoint, MapView};
+use crate::solver::{
+    align_with, Alignment, AlignmentInput, Correspondences, IntensityPoint, MapView,
+};
 
 /// Steps 1–2 for one sweep: calibration and feature selection. Independent of the motion, so
 /// it can run on its own thread ahead of the odometry.
@@ -97,6 +99,8 @@ pub struct Odometry {
     last: Option<(u64, Isometry3<f64>)>,
     velocity: Vector6<f64>,
     input: AlignmentInput,
+    /// The current sweep's correspondences, for its refinement after the second deskew.
+    correspondences: Correspondences,
     sweeps: u64,
     known_poses: bool,
 }
@@ -121,6 +125,7 @@ impl Odometry {
             last: None,
             velocity: Vector6::zeros(),
             input: AlignmentInput::default(),
+            correspondences: Correspondences::default(),
             sweeps: 0,
             known_poses: false,
         }
@@ -220,7 +225,14 @@ impl Odometry {
             planes: &self.planes,
             intensity: &self.intensity,
         };
-        let mut alignment = align(&prediction, &self.input, maps, &self.config.solver);
+        self.correspondences.clear();
+        let mut alignment = align_with(
+            &prediction,
+            &self.input,
+            maps,
+            &self.config.solver,
+            &mut self.correspondences,
+        );
         let enough = alignment.edges + alignment.planes >= self.config.solver.min_correspondences;
         if !enough {
             on_stage(Stage::Align);
@@ -249,10 +261,18 @@ impl Odometry {
                     intensity: &self.intensity,
                 };
                 let refine = crate::config::SolverConfig {
-                    outer_iterations: 2,
+                    outer_iterations: 1,
                     ..self.config.solver.clone()
                 };
-                alignment = align(&alignment.pose, &self.input, maps, &refine);
+                // The correspondences of the first alignment still hold for points the new
+                // deskew moved by millimetres: only those it moved farther are searched again.
+                alignment = align_with(
+                    &alignment.pose,
+                    &self.input,
+                    maps,
+                    &refine,
+                    &mut self.correspondences,
+                );
             }
             self.velocity = clamp_twist(log(&(previous.inverse() * alignment.pose)) / interval);
             self.deskew(features, &self.velocity.clone());
@@ -328,10 +348,26 @@ impl Odometry {
         self.input
             .edges
             .extend(features.edges.iter().map(|f| skew.apply(f)));
+        // A plane point an angular error would move far off its surface (ground seen far away
+        // at a grazing angle) says little about the pose, and in the map it would carry that
+        // sweep's tilt to every later sweep matched to it: it is left out of both, and the
+        // surface enters the map when the robot sees it closer.
+        let min_weight = self.config.local_map.min_plane_weight;
+        let solver = &self.config.solver;
         self.input.planes.clear();
         self.input
             .planes
-            .extend(features.planes.iter().map(|f| skew.apply(f)));
+            .extend(features.planes.iter().filter_map(|f| {
+                // Judged at the firing position, so a second deskew keeps the same points.
+                let p = Vector3::from(f.position).cast::<f64>();
+                let normal = Vector3::from(f.normal).cast::<f64>();
+                let lever_sq = if normal == Vector3::zeros() {
+                    p.norm_squared()
+                } else {
+                    p.cross(&normal).norm_squared()
+                };
+                (angular_weight(lever_sq, solver) >= min_weight).then(|| skew.apply(f))
+            }));
         self.input.intensity.clear();
         if self.config.solver.use_intensity {
             self.input
@@ -349,21 +385,8 @@ impl Odometry {
         for p in &self.input.edges {
             self.edges.insert((pose * Point3::from(*p)).coords.cast());
         }
-        // A plane point an angular error would move far off its surface (ground seen far away
-        // at a grazing angle) would carry that sweep's tilt into the map, where every later
-        // sweep near it is matched to it: it stays out, and the surface enters the map when
-        // the robot sees it closer.
-        let min_weight = self.config.local_map.min_plane_weight;
-        for (p, f) in self.input.planes.iter().zip(&features.planes) {
-            let normal = Vector3::from(f.normal).cast::<f64>();
-            let lever_sq = if normal == Vector3::zeros() {
-                p.norm_squared()
-            } else {
-                p.cross(&normal).norm_squared()
-            };
-            if angular_weight(lever_sq, &self.config.solver) >= min_weight {
-                self.planes.insert((pose * Point3::from(*p)).coords.cast());
-            }
+        for p in &self.input.planes {
+            self.planes.insert((pose * Point3::from(*p)).coords.cast());
         }
         for (p, eta) in place_calibrated(features, &self.velocity, pose) {
             self.intensity.insert(&p, eta);

@@ -100,6 +100,28 @@ enum Shape {
     Plane(Vector3<f64>),
 }
 
+/// What an alignment found for each point — its map correspondence and where it was made, its
+/// eight intensity cells — kept for another alignment of the same points against the same maps
+/// (the same sweep deskewed again, its points moved by millimetres): each point keeps what is
+/// still valid for it, by the rule of [`SolverConfig::reassociation_distance`].
+#[derive(Debug, Default, Clone)]
+pub struct Correspondences {
+    edges: Links,
+    planes: Links,
+    corners: Vec<Corners>,
+}
+
+impl Correspondences {
+    /// Forgets everything (a new sweep, or the maps changed).
+    pub fn clear(&mut self) {
+        for links in [&mut self.edges, &mut self.planes] {
+            links.at.clear();
+            links.models.clear();
+        }
+        self.corners.clear();
+    }
+}
+
 /// Aligns `input` to `maps` starting from `initial`.
 pub fn align(
     initial: &Isometry3<f64>,
@@ -107,13 +129,32 @@ pub fn align(
     maps: MapView<'_>,
     config: &SolverConfig,
 ) -> Alignment {
+    align_with(
+        initial,
+        input,
+        maps,
+        config,
+        &mut Correspondences::default(),
+    )
+}
+
+/// [`align`], starting from the correspondences in `kept` (empty, or from an alignment of the
+/// same points against the same maps) and leaving this alignment's there.
+pub fn align_with(
+    initial: &Isometry3<f64>,
+    input: &AlignmentInput,
+    maps: MapView<'_>,
+    config: &SolverConfig,
+    kept: &mut Correspondences,
+) -> Alignment {
     let mut pose = *initial;
     let mut models = Vec::with_capacity(input.edges.len() + input.planes.len());
-    let mut edge_links = Links::default();
-    let mut plane_links = Links::default();
+    let Correspondences {
+        edges: edge_links,
+        planes: plane_links,
+        corners,
+    } = kept;
     let mut neighbours = Vec::with_capacity(8);
-    // The map does not change during an alignment: each intensity point's cells are kept.
-    let mut corners = Vec::new();
     let mut lambda = 1e-4;
     let mut iterations = 0;
     let mut edges = 0;
@@ -151,7 +192,7 @@ pub fn align(
             input,
             maps.intensity,
             config,
-            &mut corners,
+            corners,
         ));
         for _ in 0..config.inner_iterations.max(1) {
             if system.count == 0 {
@@ -174,14 +215,7 @@ pub fn align(
                     config.hold_information,
                 ));
                 let candidate = exp(&step) * pose;
-                let trial = build(
-                    &candidate,
-                    &models,
-                    input,
-                    maps.intensity,
-                    config,
-                    &mut corners,
-                );
+                let trial = build(&candidate, &models, input, maps.intensity, config, corners);
                 iterations += 1;
                 if trial.cost <= system.cost {
                     pose = candidate;
@@ -205,7 +239,7 @@ pub fn align(
     // The last accepted trial was built at `pose` with the last round's models: it is the
     // final system (re-association happens only at the start of a round).
     let system =
-        last.unwrap_or_else(|| build(&pose, &models, input, maps.intensity, config, &mut corners));
+        last.unwrap_or_else(|| build(&pose, &models, input, maps.intensity, config, corners));
     let info = plane_information(&pose, &models);
     let translational = info.translation / info.planes.max(1) as f64;
     let eigen = SymmetricEigen::new(translational);
@@ -319,7 +353,7 @@ const NULL_INFORMATION: f64 = 1e-6;
 /// Each point's correspondence and where (world frame) it was made. A point that has moved less
 /// than [`SolverConfig::reassociation_distance`] since keeps it: its nearest neighbours, 0.1 m
 /// or more apart in the map, would be the same, and the search is most of the solver's time.
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone)]
 struct Links {
     at: Vec<Vector3<f64>>,
     models: Vec<Option<Model>>,
