@@ -51,6 +51,8 @@ pub struct IntensityMap {
     blocks: Vec<([i32; 3], Block)>,
     /// Observed cells.
     cells: usize,
+    /// Scratch for [`Self::insert_sweep`]: per cell, a point in it, the sum and the count.
+    sweep: FxHashMap<[i32; 3], (Vector3<f32>, f32, u32)>,
 }
 
 /// The eight cells around the last lookup (their means, `None` where unobserved), for
@@ -80,6 +82,7 @@ impl IntensityMap {
             index: FxHashMap::default(),
             blocks: Vec::new(),
             cells: 0,
+            sweep: FxHashMap::default(),
         }
     }
 
@@ -123,6 +126,27 @@ impl IntensityMap {
         }
         *count = (*count + 1).min(self.max_count);
         block.mean[at] += (eta - block.mean[at]) / f32::from(*count);
+    }
+
+    /// Adds a sweep's returns (world points with their reflectivity). A sweep's returns in one
+    /// cell count as one observation, their mean: near the robot a sweep puts dozens of returns
+    /// in a 0.2 m cell, which would fill the capped count alone and make the map there the last
+    /// sweep — the next one would then be matched to its predecessor rather than to a map.
+    pub fn insert_sweep(&mut self, returns: impl IntoIterator<Item = (Vector3<f32>, f32)>) {
+        let mut sweep = std::mem::take(&mut self.sweep);
+        sweep.clear();
+        for (p, eta) in returns {
+            if !eta.is_finite() || !p.iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            let cell = sweep.entry(self.key(&p)).or_insert((p, 0.0, 0));
+            cell.1 += eta;
+            cell.2 += 1;
+        }
+        for (at, sum, n) in sweep.values() {
+            self.insert(at, sum / *n as f32);
+        }
+        self.sweep = sweep;
     }
 
     /// The mean of cell `cell`, if observed; `last` caches the most recent block looked up.

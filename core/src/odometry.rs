@@ -388,9 +388,8 @@ impl Odometry {
         for p in &self.input.planes {
             self.planes.insert((pose * Point3::from(*p)).coords.cast());
         }
-        for (p, eta) in place_calibrated(features, &self.velocity, pose) {
-            self.intensity.insert(&p, eta);
-        }
+        self.intensity
+            .insert_sweep(place_calibrated(features, &self.velocity, pose));
     }
 }
 
