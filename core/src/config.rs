@@ -109,7 +109,8 @@ impl Default for FeatureConfig {
 pub struct IntensityMapConfig {
     /// Voxel edge, m.
     pub voxel: f32,
-    /// Cap on the running mean's count, so the map can follow changes.
+    /// Cap on the running mean's count (of sweeps: a sweep's returns in a cell are one
+    /// observation), so the map can follow changes.
     pub max_count: u16,
     /// Sum of trilinear weights of observed corners needed for a lookup.
     pub min_weight: f32,

@@ -1,5 +1,6 @@
 //! Step 3 of the method: the intensity map. A sparse voxel grid holding the running mean of
-//! calibrated reflectivity, `M ← M + (η − M)/n` with `n` capped so the map can follow changes.
+//! calibrated reflectivity, `M ← M + (η − M)/n` with `n` capped so the map can follow changes,
+//! each sweep counting once per cell ([`IntensityMap::insert_sweep`]).
 //! Lookups interpolate trilinearly between the eight cell centres around a point — with the
 //! weights the paper misprinted corrected — over observed cells only (weights renormalised),
 //! and return the analytic gradient for the solver.
@@ -7,7 +8,7 @@
 //! Cells are stored in blocks of 4 × 4 × 4 behind one hash lookup a block: a lookup's eight
 //! cells and a sweep's successive returns mostly fall in one block, so a cell costs an array
 //! read instead of a hash probe into a table too large for the cache (a 0.2 m grid over an
-//! 80 m radius). Per cell hashing was a fifth of the odometry's time.
+//! 80 m radius).
 
 use nalgebra::Vector3;
 use rustc_hash::FxHashMap;
@@ -352,5 +353,24 @@ mod tests {
         }
         // With the count capped at 4 the mean follows the change.
         assert!((m.sample(&p.cast()).unwrap().value - 90.0).abs() < 1.0);
+    }
+
+    #[test]
+    fn a_sweep_counts_once_per_cell() {
+        let mut m = IntensityMap::new(&IntensityMapConfig {
+            voxel: 1.0,
+            max_count: 20,
+            min_weight: 0.1,
+        });
+        let p = Vector3::new(0.5, 0.5, 0.5);
+        let sweep = |eta: f32| (0..50).map(move |i| (p + Vector3::repeat(i as f32 * 1e-3), eta));
+        m.insert_sweep(sweep(10.0));
+        m.insert_sweep(sweep(90.0));
+        // Two observations of equal weight, not 50 of the last sweep: the mean is halfway.
+        assert!((m.sample(&p.cast()).unwrap().value - 50.0).abs() < 1e-4);
+        assert_eq!(m.len(), 1);
+        // NaN returns are skipped, not averaged in.
+        m.insert_sweep([(p, f32::NAN), (p, 50.0)]);
+        assert!((m.sample(&p.cast()).unwrap().value - 50.0).abs() < 1e-4);
     }
 }
