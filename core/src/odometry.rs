@@ -18,9 +18,8 @@ use crate::intensity_map::IntensityMap;
 use crate::local_map::LocalMap;
 use crate::scan::Scan;
 use crate::se3::{exp, log};
-use crate::solver::angular_weight;
 use crate::solver::{
-    align_with, Alignment, AlignmentInput, Correspondences, IntensityPoint, MapView,
+    align_with, angular_weight, Alignment, AlignmentInput, Correspondences, IntensityPoint, MapView,
 };
 
 /// Steps 1–2 for one sweep: calibration and feature selection. Independent of the motion, so

@@ -427,13 +427,13 @@ fn associate(
     })
 }
 
-/// A plane residual's weight from how much an angular error of the ray moves the point off the
-/// plane. An angular error δ (the sweep's vibration and residual motion, the beam's width)
-/// displaces a return at range r by r·δ across its ray, and the plane sees the part along its
-/// normal, r·δ·sin α at incidence α: |p × n|·δ. Range noise σ adds along the ray (taken whole,
-/// the map's own plane fit included), so the residual's variance is σ² + (|p × n|·δ)², and the
-/// weight σ² over that: 1 on a wall seen head-on, small for ground seen far away at a grazing
-/// angle, which a tilt of the sensor lifts by metres.
+/// A geometric residual's weight from how much an angular error of the ray moves the point off
+/// its model. An angular error δ (the sweep's vibration and residual motion, the beam's width)
+/// displaces a return at range r by r·δ across its ray, and a plane sees the part along its
+/// normal, r·δ·sin α at incidence α: |p × n|·δ (a line, the part leaving it: |p × d|·δ). Range
+/// noise σ adds along the ray (taken whole, the map's own fit included), so the residual's
+/// variance is σ² + (|p × n|·δ)², and the weight σ² over that: 1 on a wall seen head-on, small
+/// for ground seen far away at a grazing angle, which a tilt of the sensor lifts by metres.
 fn residual_weight(
     pose: &Isometry3<f64>,
     p: &Vector3<f64>,
