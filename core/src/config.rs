@@ -138,9 +138,9 @@ pub struct LocalMapConfig {
     pub min_spacing: f32,
     /// Cells farther than this from the robot are dropped, m.
     pub radius: f32,
-    /// Plane points whose residual weight (`solver.angular_noise`) is below this do not enter
-    /// the map: seen at a grazing angle from far away, a sweep's small tilt lifts them by
-    /// decimetres, and the map would keep that error.
+    /// Plane points whose residual weight (`solver.angular_noise`) is below this are left out of
+    /// the alignment and the map: seen at a grazing angle from far away, a sweep's small tilt
+    /// lifts them by decimetres, and the map would keep that error.
     pub min_plane_weight: f64,
 }
 
@@ -180,9 +180,9 @@ pub struct SolverConfig {
     pub plane_noise: f64,
     /// Angular error of a return's ray, rad: vibration within a sweep that the constant-velocity
     /// deskew cannot follow, the beam's divergence. Plane residuals are weighted by
-    /// plane_noise² / (plane_noise² + (|p × n|·angular_noise)²), so ground far away at a grazing
-    /// angle, which a small tilt lifts by decimetres, does not steer the tilt. 0 weighs every
-    /// plane alike.
+    /// plane_noise² / (plane_noise² + (|p × n|·angular_noise)²), line residuals likewise with
+    /// |p × d|, so ground far away at a grazing angle, which a small tilt lifts by decimetres,
+    /// does not steer the tilt. 0 weighs every residual alike.
     pub angular_noise: f64,
     /// Use the intensity residual.
     pub use_intensity: bool,

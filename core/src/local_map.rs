@@ -7,9 +7,9 @@
 //! The cells' points live in flat arrays, `points_per_cell` slots a cell, one array per
 //! coordinate, so a search reads contiguous memory instead of chasing a heap allocation per cell
 //! and a cell's distances are computed side by side (vectorised) before any is ranked; the hash
-//! only maps a cell's key to its slot. A search skips every one of the 27 cells whose box is farther than the
-//! current k-th neighbour: the answer is the exact k nearest, and a query in the middle of a
-//! surface reads two or three cells instead of nine.
+//! only maps a cell's key to its slot. A search skips every one of the 27 cells whose box is
+//! farther than the current k-th neighbour: the answer is the exact k nearest, and a query in the
+//! middle of a surface reads two or three cells instead of nine.
 
 use nalgebra::Vector3;
 use rustc_hash::FxHashMap;
