@@ -54,6 +54,37 @@ fn span(
     }
 }
 
+/// atan2(y, x) within 2e-5 rad (a tenth of a millidegree, against the image's 0.2° columns), in
+/// a tenth of the instructions of libm's `atan2f`, which was an eighth of the calibration's.
+fn atan2(y: f32, x: f32) -> f32 {
+    use std::f32::consts::{FRAC_PI_2, PI};
+    let (ax, ay) = (x.abs(), y.abs());
+    if ax == 0.0 && ay == 0.0 {
+        return 0.0;
+    }
+    // atan of the ratio in [0, 1], by a minimax polynomial in its square.
+    let t = ax.min(ay) / ax.max(ay);
+    let t2 = t * t;
+    let poly = -0.011_721_2_f32;
+    let poly = poly * t2 + 0.052_653_32;
+    let poly = poly * t2 - 0.116_432_87;
+    let poly = poly * t2 + 0.193_543_46;
+    let poly = poly * t2 - 0.332_623_47;
+    let poly = poly * t2 + 0.999_977_26;
+    let mut a = poly * t;
+    if ay > ax {
+        a = FRAC_PI_2 - a;
+    }
+    if x < 0.0 {
+        a = PI - a;
+    }
+    if y < 0.0 {
+        -a
+    } else {
+        a
+    }
+}
+
 /// Columns of the range image: 0.2°, the VLP-16's horizontal step at 600 rpm.
 pub const COLUMNS: usize = 1800;
 const EMPTY: u32 = u32::MAX;
@@ -69,6 +100,8 @@ pub struct RangeImage {
     pub ring_positions: Vec<Vec<Vector3<f32>>>,
     /// Per ring × column, the index of the return there (the last one if several).
     cells: Vec<u32>,
+    /// Per point: its place in its ring's `ring_points` (`EMPTY` if in none).
+    ring_index: Vec<u32>,
     /// Per point: its column, its range, and whether it passed the weak-return filter.
     pub column: Vec<u16>,
     /// See `column`.
@@ -84,6 +117,8 @@ pub struct RangeImage {
     /// Per point: azimuth, rad, clockwise from +x as the sensor counts it.
     azimuth: Vec<f32>,
     steps: Vec<f32>,
+    /// The sweep's azimuth step, see [`Self::azimuth_step`].
+    step: Option<f32>,
 }
 
 impl RangeImage {
@@ -109,6 +144,8 @@ impl RangeImage {
         self.column.resize(n, 0);
         self.valid.clear();
         self.valid.resize(n, false);
+        self.ring_index.clear();
+        self.ring_index.resize(n, EMPTY);
         self.retro.clear();
         self.retro.resize(n, false);
         self.azimuth.clear();
@@ -124,7 +161,10 @@ impl RangeImage {
                 continue;
             }
             // Clockwise from +x, as the sensor counts azimuth.
-            let azimuth = (-y).atan2(x).rem_euclid(std::f32::consts::TAU);
+            let azimuth = match atan2(-y, x) {
+                a if a < 0.0 => a + std::f32::consts::TAU,
+                a => a,
+            };
             let column =
                 ((azimuth / std::f32::consts::TAU * COLUMNS as f32) as usize).min(COLUMNS - 1);
             self.range[i] = range;
@@ -132,34 +172,44 @@ impl RangeImage {
             self.column[i] = column as u16;
             self.retro[i] = p.reflectivity > 100;
             self.valid[i] = p.reflectivity >= config.min_reflectivity;
+            self.ring_index[i] = self.ring_points[ring].len() as u32;
             self.ring_points[ring].push(i as u32);
             self.ring_positions[ring].push(Vector3::new(x, y, z));
             self.cells[ring * COLUMNS + column] = i as u32;
         }
+        self.step = self.measure_azimuth_step();
 
-        for ring in 0..self.rings {
-            for k in 0..self.ring_points[ring].len() {
-                let i = self.ring_points[ring][k] as usize;
-                let p = &scan.points[i];
-                let raw = f32::from(p.reflectivity);
-                if self.retro[i] {
-                    self.eta[i] = raw;
-                    continue;
-                }
-                let cos = self.incidence_cos(scan, ring, k, i, config);
-                self.eta[i] = match cos {
-                    Some(c) if c >= config.min_reliable_cos => {
-                        (raw / c.max(config.min_cos_incidence)).min(config.max_calibrated)
-                    }
-                    _ => f32::NAN,
-                };
+        // In firing order, not ring by ring: the returns above and below at the same azimuth
+        // were fired with the one calibrated and sit beside it in memory, so the sweep is read
+        // through once instead of once per ring.
+        for i in 0..n {
+            let k = self.ring_index[i];
+            if k == EMPTY {
+                continue;
             }
+            let p = &scan.points[i];
+            let raw = f32::from(p.reflectivity);
+            if self.retro[i] {
+                self.eta[i] = raw;
+                continue;
+            }
+            let cos = self.incidence_cos(scan, usize::from(p.ring), k as usize, i, config);
+            self.eta[i] = match cos {
+                Some(c) if c >= config.min_reliable_cos => {
+                    (raw / c.max(config.min_cos_incidence)).min(config.max_calibrated)
+                }
+                _ => f32::NAN,
+            };
         }
     }
 
     /// The typical azimuth step between successive returns of a ring, rad (the median over
     /// the sweep; 0.2° for a VLP-16 at 600 rpm). `None` for a sweep too sparse to tell.
-    pub fn azimuth_step(&mut self) -> Option<f32> {
+    pub fn azimuth_step(&self) -> Option<f32> {
+        self.step
+    }
+
+    fn measure_azimuth_step(&mut self) -> Option<f32> {
         self.steps.clear();
         for members in &self.ring_points {
             for w in members.windows(2) {
@@ -179,11 +229,14 @@ impl RangeImage {
 
     /// The return at ring `ring`, column `column` (or the next column either side), if any.
     fn at(&self, ring: usize, column: usize) -> Option<usize> {
-        [0isize, 1, -1].into_iter().find_map(|d| {
-            let c = (column as isize + d).rem_euclid(COLUMNS as isize) as usize;
-            let v = self.cells[ring * COLUMNS + c];
-            (v != EMPTY).then_some(v as usize)
-        })
+        let row = &self.cells[ring * COLUMNS..(ring + 1) * COLUMNS];
+        let next = if column + 1 == COLUMNS { 0 } else { column + 1 };
+        let previous = if column == 0 { COLUMNS - 1 } else { column - 1 };
+        [column, next, previous]
+            .into_iter()
+            .map(|c| row[c])
+            .find(|&v| v != EMPTY)
+            .map(|v| v as usize)
     }
 
     /// cos α from the normal of the surface through the neighbours of point `i` (the `k`-th of
@@ -299,6 +352,19 @@ mod tests {
             }
         }
         pts
+    }
+
+    #[test]
+    fn the_fast_atan2_matches_libm() {
+        for i in 0..10_000 {
+            let angle = (i as f32 / 5_000.0 - 1.0) * std::f32::consts::PI;
+            for r in [0.5f32, 3.0, 100.0] {
+                let (y, x) = (r * angle.sin(), r * angle.cos());
+                assert!((atan2(y, x) - y.atan2(x)).abs() < 2e-5, "{y} {x}");
+            }
+        }
+        assert_eq!(atan2(0.0, 0.0), 0.0);
+        assert!((atan2(0.0, -1.0) - std::f32::consts::PI).abs() < 1e-6);
     }
 
     #[test]

@@ -81,6 +81,11 @@ pub struct FeatureConfig {
     /// 1.47 % at 0.1 (0.15 starves it: 5–13 %); warehouse 3 0.331 → 0.330 %, yard 7 / 19 / 8
     /// 0.67 / 0.58 / ~1.0 → 0.71 / 0.60 / 0.91 %.
     pub intensity_roughness_threshold: f32,
+    /// Returns handed to the intensity map are at least this far apart along a ring, m. The
+    /// map keeps one observation per sweep per cell (the mean of the sweep's returns in it), and
+    /// a wall a few metres away puts twenty returns of a ring in a 0.2 m cell: a few of them
+    /// give nearly the same mean for a fraction of the deskewing and hashing. 0 keeps all.
+    pub intensity_map_spacing: f32,
 }
 
 impl Default for FeatureConfig {
@@ -99,6 +104,7 @@ impl Default for FeatureConfig {
             plane_voxel: 0.5,
             max_intensity_points: 1500,
             intensity_roughness_threshold: 0.1,
+            intensity_map_spacing: 0.05,
         }
     }
 }
@@ -200,6 +206,11 @@ pub struct SolverConfig {
     pub hold_information: f64,
     /// Stop when an update moves less than this (rad and m).
     pub convergence: f64,
+    /// Stop when a step changes the cost by less than this fraction of it, up or down: the fit
+    /// is at the resolution of its own model (Huber corners, trilinear intensity cells), where
+    /// a rejected step stays rejected however much it is damped. Without this, three trials in
+    /// four were such retries (12 s warehouse), each a full evaluation of the system.
+    pub cost_tolerance: f64,
     /// Between rounds, a point keeps its correspondence unless the pose moved it more than
     /// this, m. A line or plane model stays valid as the point slides along it, and map points
     /// are ≥ 0.2 m apart, so a few centimetres seldom change a neighbourhood; re-searching
@@ -236,6 +247,7 @@ impl Default for SolverConfig {
             huber_intensity: 0.1,
             hold_information: 0.002,
             convergence: 1e-4,
+            cost_tolerance: 1e-4,
             reassociation_distance: 0.05,
             min_correspondences: 30,
             degeneracy_threshold: 0.01,

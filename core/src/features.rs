@@ -41,7 +41,8 @@ pub struct SweepFeatures {
     pub planes: Vec<Feature>,
     /// Returns with the largest intensity roughness, for the intensity residual.
     pub intensity: Vec<Feature>,
-    /// Every valid calibrated return, for the intensity map.
+    /// Valid calibrated returns, `intensity_map_spacing` apart along a ring: the intensity
+    /// map's input.
     pub calibrated: Vec<Feature>,
 }
 
@@ -58,6 +59,8 @@ pub struct FeatureSelector {
     candidates: Vec<(f32, u32)>,
     /// A sector's edge candidates (combined σ above the threshold), roughest first.
     edge_candidates: Vec<(f32, u32)>,
+    /// Per ring, the position of the last return handed to the intensity map.
+    last_kept: Vec<[f32; 3]>,
 }
 
 impl FeatureSelector {
@@ -104,10 +107,24 @@ impl FeatureSelector {
                 && image.range[i] >= config.min_range
                 && image.range[i] <= config.max_range
         };
-        for (i, _) in scan.points.iter().enumerate() {
-            if usable(i) && image.eta[i].is_finite() {
-                out.calibrated.push(feature(i));
+        // Firing order is azimuth order within each ring, so the last return kept per ring is
+        // the one to measure the spacing from.
+        let spacing_sq = config.intensity_map_spacing * config.intensity_map_spacing;
+        self.last_kept.clear();
+        self.last_kept.resize(scan.rings, [f32::INFINITY; 3]);
+        for (i, p) in scan.points.iter().enumerate() {
+            if !usable(i) || !image.eta[i].is_finite() {
+                continue;
             }
+            let Some(last) = self.last_kept.get_mut(usize::from(p.ring)) else {
+                continue;
+            };
+            let [dx, dy, dz] = [0, 1, 2].map(|a| p.position[a] - last[a]);
+            if dx * dx + dy * dy + dz * dz < spacing_sq {
+                continue;
+            }
+            *last = p.position;
+            out.calibrated.push(feature(i));
         }
 
         let edge_threshold = config.edge_threshold * step_ratio.clamp(0.5, 4.0);
@@ -360,6 +377,33 @@ mod tests {
             assert!(at_corner, "geometry-only edge away from the corner: {e:?}");
         }
         assert!(f.edges.iter().all(|e| e.dt <= 0.0));
+    }
+
+    #[test]
+    fn the_intensity_map_input_is_thinned_along_each_ring() {
+        let all = corner_features(FeatureConfig {
+            intensity_map_spacing: 0.0,
+            ..FeatureConfig::default()
+        });
+        let thinned = corner_features(FeatureConfig::default());
+        // At 5–7 m the returns are 1.7–2.5 cm apart: one in two or three is kept, and no two
+        // kept on a ring are closer than the spacing.
+        assert!(thinned.calibrated.len() * 2 <= all.calibrated.len());
+        assert!(thinned.calibrated.len() * 4 >= all.calibrated.len());
+        let spacing = FeatureConfig::default().intensity_map_spacing;
+        for pair in thinned.calibrated.windows(2) {
+            let d: f32 = (0..3)
+                .map(|a| (pair[1].position[a] - pair[0].position[a]).powi(2))
+                .sum::<f32>()
+                .sqrt();
+            let same_ring = (pair[1].position[2] > 0.0) == (pair[0].position[2] > 0.0);
+            assert!(!same_ring || d >= spacing, "{d} m apart");
+        }
+        // The reflectivity of what is kept is unchanged.
+        assert!(thinned.calibrated.iter().all(|t| all
+            .calibrated
+            .iter()
+            .any(|a| a.position == t.position && a.eta == t.eta)));
     }
 
     #[test]

@@ -217,12 +217,17 @@ pub fn align_with(
                 let candidate = exp(&step) * pose;
                 let trial = build(&candidate, &models, input, maps.intensity, config, corners);
                 iterations += 1;
+                let change = (trial.cost - system.cost).abs() / system.cost.max(f64::MIN_POSITIVE);
                 if trial.cost <= system.cost {
                     pose = candidate;
                     *system = trial;
                     lambda = (lambda / 3.0).max(1e-7);
                     accepted = true;
-                    converged = step.norm() < config.convergence;
+                    converged = step.norm() < config.convergence || change < config.cost_tolerance;
+                    break;
+                }
+                if change < config.cost_tolerance {
+                    converged = true;
                     break;
                 }
                 lambda *= 4.0;
@@ -625,6 +630,7 @@ fn build(
         squared_ranges: 0.0,
         planes: 0,
     };
+    let mut rows = RowSums::default();
     for m in models {
         let q = (pose * Point3::from(m.point)).coords;
         match m.shape {
@@ -635,9 +641,7 @@ fn build(
                 // ∂q/∂δ = [−[q]×, I], so ∂e/∂δ = nᵀ·[−[q]×, I] = [(q × n)ᵀ, nᵀ].
                 let arm = scale * q.cross(&n);
                 let n = scale * n;
-                let j = Vector6::new(arm.x, arm.y, arm.z, n.x, n.y, n.z);
-                s.hessian.ger(w, &j, &j, 1.0);
-                s.gradient.axpy(w * e, &j, 1.0);
+                rows.add(w, &[arm.x, arm.y, arm.z, n.x, n.y, n.z], e);
                 s.cost += cost;
                 s.squared_ranges += m.point.norm_squared();
                 s.planes += 1;
@@ -651,9 +655,7 @@ fn build(
                 for i in 0..3 {
                     let row = projection.column(i).into_owned();
                     let arm = q.cross(&row);
-                    let j = Vector6::new(arm.x, arm.y, arm.z, row.x, row.y, row.z);
-                    s.hessian.ger(w, &j, &j, 1.0);
-                    s.gradient.axpy(w * e[i], &j, 1.0);
+                    rows.add(w, &[arm.x, arm.y, arm.z, row.x, row.y, row.z], e[i]);
                 }
                 s.cost += cost;
             }
@@ -678,15 +680,42 @@ fn build(
             // r = w·(η − M(q)) ⇒ ∂r/∂δ = −w·∇Mᵀ·[−[q]×, I].
             let g = -weight * along;
             let j_rot = -(g.transpose() * skew(&q));
-            let j = Vector6::new(j_rot[0], j_rot[1], j_rot[2], g.x, g.y, g.z);
-            s.hessian.ger(w, &j, &j, 1.0);
-            s.gradient.axpy(w * r, &j, 1.0);
+            rows.add(w, &[j_rot[0], j_rot[1], j_rot[2], g.x, g.y, g.z], r);
             s.cost += cost;
             s.count += 1;
             s.intensity += 1;
         }
     }
+    (s.hessian, s.gradient) = rows.normal_equations();
     s
+}
+
+/// Σ w·j·jᵀ and Σ w·e·j over the residual rows j. The matrix is symmetric, so only its upper
+/// triangle is summed: 21 products a row instead of the 36 of nalgebra's `ger`, which made this
+/// accumulation a fifth of the odometry's instructions.
+#[derive(Default)]
+struct RowSums {
+    /// Row a's entries b ≥ a.
+    upper: [[f64; 6]; 6],
+    gradient: [f64; 6],
+}
+
+impl RowSums {
+    #[inline(always)]
+    fn add(&mut self, w: f64, j: &[f64; 6], e: f64) {
+        for (a, (row, g)) in self.upper.iter_mut().zip(&mut self.gradient).enumerate() {
+            let wj = w * j[a];
+            for (h, &jb) in row[a..].iter_mut().zip(&j[a..]) {
+                *h += wj * jb;
+            }
+            *g += wj * e;
+        }
+    }
+
+    fn normal_equations(&self) -> (Matrix6<f64>, Vector6<f64>) {
+        let hessian = Matrix6::from_fn(|r, c| self.upper[r.min(c)][r.max(c)]);
+        (hessian, Vector6::from(self.gradient))
+    }
 }
 
 #[cfg(test)]
@@ -925,6 +954,26 @@ mod tests {
         assert!(
             g.pose.translation.vector.x.abs() < 0.05,
             "geometry alone cannot see the offset"
+        );
+        // Trilinear cells make the cost piecewise smooth: near the minimum a step can raise it
+        // by a hair however it is damped. Stopping there (`cost_tolerance`) instead of retrying
+        // saves trials and gives the same pose.
+        let retrying = SolverConfig {
+            cost_tolerance: 0.0,
+            ..SolverConfig::default()
+        };
+        let r = align(&Isometry3::identity(), &input, maps, &retrying);
+        assert!(
+            a.iterations < r.iterations,
+            "{} trials stopping, {} retrying",
+            a.iterations,
+            r.iterations
+        );
+        assert!(
+            (a.pose.translation.vector - r.pose.translation.vector).norm() < 0.005,
+            "{} against {}",
+            a.pose.translation.vector,
+            r.pose.translation.vector
         );
     }
 }
