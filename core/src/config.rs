@@ -413,6 +413,12 @@ impl OdometryConfig {
             pos32(f.plane_voxel),
             positive,
         )?;
+        check(
+            "features.intensity_map_spacing",
+            f.intensity_map_spacing,
+            f.intensity_map_spacing.is_finite() && f.intensity_map_spacing >= 0.0,
+            "must be a finite number >= 0",
+        )?;
         check("intensity_map.voxel", i.voxel, pos32(i.voxel), positive)?;
         check(
             "intensity_map.max_count",
@@ -524,6 +530,12 @@ impl OdometryConfig {
             positive,
         )?;
         check(
+            "solver.cost_tolerance",
+            s.cost_tolerance,
+            s.cost_tolerance.is_finite() && s.cost_tolerance >= 0.0,
+            "must be a finite number >= 0",
+        )?;
+        check(
             "solver.degeneracy_threshold",
             s.degeneracy_threshold,
             s.degeneracy_threshold.is_finite() && s.degeneracy_threshold >= 0.0,
@@ -552,5 +564,14 @@ mod tests {
         c = OdometryConfig::default();
         c.solver.huber_geometric = f64::NAN;
         assert_eq!(c.validate().unwrap_err().key, "solver.huber_geometric");
+        c = OdometryConfig::default();
+        c.solver.cost_tolerance = -1.0;
+        assert_eq!(c.validate().unwrap_err().key, "solver.cost_tolerance");
+        c = OdometryConfig::default();
+        c.features.intensity_map_spacing = f32::INFINITY;
+        assert_eq!(
+            c.validate().unwrap_err().key,
+            "features.intensity_map_spacing"
+        );
     }
 }
