@@ -68,7 +68,7 @@ impl FeatureSelector {
     pub fn select(
         &mut self,
         scan: &Scan<'_>,
-        image: &mut RangeImage,
+        image: &RangeImage,
         config: &FeatureConfig,
         out: &mut SweepFeatures,
     ) {
@@ -77,7 +77,6 @@ impl FeatureSelector {
         let step_ratio = image
             .azimuth_step()
             .map_or(1.0, |step| step / REFERENCE_STEP_RAD);
-        let image = &*image;
         out.reference_ns = scan.reference_ns;
         out.returns = scan.points.len();
         out.edges.clear();

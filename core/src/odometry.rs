@@ -44,7 +44,7 @@ impl FrontEnd {
     pub fn process(&mut self, scan: &Scan<'_>, out: &mut SweepFeatures) {
         self.image.build(scan, &self.config.calibration);
         self.selector
-            .select(scan, &mut self.image, &self.config.features, out);
+            .select(scan, &self.image, &self.config.features, out);
     }
 }
 

@@ -106,12 +106,10 @@ fn in_the_corridor_intensity_holds_the_axis_geometry_cannot() {
         60.0,
         &OdometryConfig::geometry_only(),
     );
-    let along = |r: &Run| {
-        let pairs = associate(&r.estimates, &r.groundtruth);
-        drift_along_axis(&pairs, &WAREHOUSE_LENGTHS, axis).expect("segments fit")
-    };
-    let (intensity, geometry) = (along(&with), along(&without));
     let pairs = associate(&with.estimates, &with.groundtruth);
+    let pairs_without = associate(&without.estimates, &without.groundtruth);
+    let along = |pairs| drift_along_axis(pairs, &WAREHOUSE_LENGTHS, axis).expect("segments fit");
+    let (intensity, geometry) = (along(&pairs), along(&pairs_without));
     let drift = relative_errors(&pairs, &WAREHOUSE_LENGTHS).expect("segments fit");
     eprintln!("corridor seed 14: drift along the axis {intensity:.2} % with intensity, {geometry:.2} % geometry only; with intensity {drift}");
     // The floor for the corridor: 1 %, in every direction.
