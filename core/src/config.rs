@@ -22,6 +22,12 @@ pub struct CalibrationConfig {
     pub neighbour_gap: f32,
     /// Calibrated values are clamped to this (diffuse surfaces report at most 100).
     pub max_calibrated: f32,
+    /// A return this close (m) to the last one on its ring whose normal was estimated takes
+    /// that normal instead of estimating its own. The estimate reaches at least 0.2 m either
+    /// side, so returns 0.1 m apart share most of its support; a wall 2 m away puts 14 returns
+    /// in 0.1 m, each of which would walk 20 steps either way. On the simulated scenes 0.05 and
+    /// 0.1 gave the same drift (within 0.01 %). 0 estimates every normal.
+    pub normal_spacing: f32,
 }
 
 impl Default for CalibrationConfig {
@@ -32,6 +38,7 @@ impl Default for CalibrationConfig {
             min_reflectivity: 1,
             neighbour_gap: 0.05,
             max_calibrated: 150.0,
+            normal_spacing: 0.1,
         }
     }
 }
@@ -354,6 +361,12 @@ impl OdometryConfig {
             positive,
         )?;
         check(
+            "calibration.normal_spacing",
+            c.normal_spacing,
+            c.normal_spacing.is_finite() && c.normal_spacing >= 0.0,
+            "must be a finite number >= 0",
+        )?;
+        check(
             "features.neighbours",
             f.neighbours,
             (1..=32).contains(&f.neighbours),
@@ -573,5 +586,8 @@ mod tests {
             c.validate().unwrap_err().key,
             "features.intensity_map_spacing"
         );
+        c = OdometryConfig::default();
+        c.calibration.normal_spacing = -0.1;
+        assert_eq!(c.validate().unwrap_err().key, "calibration.normal_spacing");
     }
 }

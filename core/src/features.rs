@@ -61,6 +61,8 @@ pub struct FeatureSelector {
     edge_candidates: Vec<(f32, u32)>,
     /// Per ring, the position of the last return handed to the intensity map.
     last_kept: Vec<[f32; 3]>,
+    /// One ring's calibrated values, in ring order.
+    ring_eta: Vec<f32>,
 }
 
 impl FeatureSelector {
@@ -164,6 +166,11 @@ impl FeatureSelector {
                     self.unreliable[b] = true;
                 }
             }
+            // The ring's calibrated values side by side, for the windows below.
+            self.ring_eta.clear();
+            self.ring_eta
+                .extend(members.iter().map(|&m| image.eta[m as usize]));
+            let ring_eta = &self.ring_eta;
             for w in k..members.len() - k {
                 let i = members[w] as usize;
                 if !usable(i) {
@@ -178,17 +185,18 @@ impl FeatureSelector {
                 // Σⱼ(pⱼ − pᵢ) over the 2k neighbours.
                 let window = positions[w - k..=w + k].iter().sum::<Vector3<f32>>();
                 let sum = window - p * (2 * k + 1) as f32;
-                let ei = image.eta[i];
+                let ei = ring_eta[w];
                 let mut eta_diff = 0f32;
                 let mut eta_count = 0;
                 if ei.is_finite() {
-                    for &m in members[w - k..=w + k].iter() {
-                        let ej = image.eta[m as usize];
-                        if m as usize != i && ej.is_finite() {
-                            eta_diff += (ej - ei).abs();
-                            eta_count += 1;
-                        }
+                    // Branch-free over the whole window: the return itself adds |ei − ei| = 0
+                    // and one to the count, taken back after.
+                    for &ej in &ring_eta[w - k..=w + k] {
+                        let known = ej.is_finite();
+                        eta_diff += if known { (ej - ei).abs() } else { 0.0 };
+                        eta_count += usize::from(known);
                     }
+                    eta_count -= 1;
                 }
                 let geometric = sum.norm() / ((2 * k) as f32 * image.range[i]);
                 let intensity = if eta_count > 0 {
@@ -210,29 +218,31 @@ impl FeatureSelector {
                     continue;
                 }
                 let slice = &self.roughness[lo..hi];
-                // Edges: only returns above the threshold can be one, so only those are ranked
-                // (ties by ring order, so the choice is deterministic).
+                // Edges: only reliable returns clear of the threshold by three times the noise
+                // can be one, so only those are ranked (ties by ring order, so the choice is
+                // deterministic).
                 self.edge_candidates.clear();
+                let unreliable = &self.unreliable;
                 self.edge_candidates.extend(
                     slice
                         .iter()
                         .map(|&(g, i, w)| (combined(g, i), w))
-                        .filter(|&(c, _)| c > edge_threshold),
+                        .filter(|&(sigma, w)| {
+                            let i = members[w as usize] as usize;
+                            sigma > edge_threshold + 3.0 * noise_floor(config, k, image.range[i])
+                                && !unreliable[i]
+                        }),
                 );
                 self.edge_candidates
                     .sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
                 let mut edges = 0;
-                for &(sigma, w) in &self.edge_candidates {
+                for &(_, w) in &self.edge_candidates {
                     if edges >= config.edges_per_sector {
                         break;
                     }
                     let w = w as usize;
                     let i = members[w] as usize;
-                    let geometric_noise = noise_floor(config, k, image.range[i]);
-                    if self.unreliable[i]
-                        || self.suppressed[i]
-                        || sigma <= edge_threshold + 3.0 * geometric_noise
-                    {
+                    if self.suppressed[i] {
                         continue;
                     }
                     out.edges.push(feature(i));

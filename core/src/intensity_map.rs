@@ -56,12 +56,35 @@ pub struct IntensityMap {
     sweep: FxHashMap<[i32; 3], (Vector3<f32>, f32, u32)>,
 }
 
-/// The eight cells around the last lookup (their means, `None` where unobserved), for
-/// [`IntensityMap::sample_near`].
+/// The eight cells around the last lookup, for [`IntensityMap::sample_near`]: corner
+/// `a + 2b + 4c` is the cell `a`, `b`, `c` steps up along x, y, z from the lower one.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Corners {
     base: Option<[i32; 3]>,
-    means: [Option<f32>; 8],
+    /// The cells' means, 0 where unobserved.
+    means: [f64; 8],
+    /// 1 where observed, 0 where not.
+    observed: [f64; 8],
+}
+
+/// The trilinear interpolation of the corner values `f` (indexed as in [`Corners`]) at the
+/// fractions `t` within the cube, and its gradient with respect to `t`. The lower and upper
+/// corners along an axis weigh 1 − t and t (the paper printed t for both).
+fn trilinear(f: &[f64; 8], t: &Vector3<f64>) -> (f64, Vector3<f64>) {
+    let lerp = |lo: f64, hi: f64, t: f64| lo + t * (hi - lo);
+    // Along x, for each (y, z) edge of the cube: the value and its x-derivative.
+    let along_x = |yz: usize| {
+        let (lo, hi) = (f[2 * yz], f[2 * yz + 1]);
+        (lerp(lo, hi, t.x), hi - lo)
+    };
+    let [(x00, dx00), (x10, dx10), (x01, dx01), (x11, dx11)] = [0, 1, 2, 3].map(along_x);
+    let (y0, y1) = (lerp(x00, x10, t.y), lerp(x01, x11, t.y));
+    let (dx0, dx1) = (lerp(dx00, dx10, t.y), lerp(dx01, dx11, t.y));
+    let (dy0, dy1) = (x10 - x00, x11 - x01);
+    (
+        lerp(y0, y1, t.z),
+        Vector3::new(lerp(dx0, dx1, t.z), lerp(dy0, dy1, t.z), y1 - y0),
+    )
 }
 
 /// An interpolated lookup: the value and its gradient with respect to the point (per metre).
@@ -185,46 +208,26 @@ impl IntensityMap {
         if corners.base != Some(base) {
             corners.base = Some(base);
             let mut last = None;
-            for (corner, mean) in corners.means.iter_mut().enumerate() {
-                let (a, b, c) = (
-                    corner as i32 & 1,
-                    (corner as i32 >> 1) & 1,
-                    corner as i32 >> 2,
-                );
-                *mean = self.cell_mean([base[0] + a, base[1] + b, base[2] + c], &mut last);
+            for corner in 0..8 {
+                let (a, b, c) = (corner & 1, (corner >> 1) & 1, corner >> 2);
+                let mean = self.cell_mean([base[0] + a, base[1] + b, base[2] + c], &mut last);
+                let at = corner as usize;
+                corners.means[at] = mean.map_or(0.0, f64::from);
+                corners.observed[at] = if mean.is_some() { 1.0 } else { 0.0 };
             }
         }
-        // Per axis, the weights of the lower and upper corner, w₀(t) = 1 − t and w₁(t) = t (the
-        // paper printed t for both), and their derivatives ∓1/s.
-        let inv = 1.0 / s;
-        let w = [[1.0 - t.x, t.x], [1.0 - t.y, t.y], [1.0 - t.z, t.z]];
-        let dw = [-inv, inv];
-        let mut weight = 0.0;
-        let mut value = 0.0;
-        let mut d_weight = Vector3::zeros();
-        let mut d_value = Vector3::zeros();
-        for (corner, mean) in corners.means.iter().enumerate() {
-            let Some(mean) = mean else {
-                continue;
-            };
-            let (a, b, c) = (corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
-            let (wx, wy, wz) = (w[0][a], w[1][b], w[2][c]);
-            let wk = wx * wy * wz;
-            let grad = Vector3::new(dw[a] * wy * wz, wx * dw[b] * wz, wx * wy * dw[c]);
-            let m = f64::from(*mean);
-            weight += wk;
-            value += wk * m;
-            d_weight += grad;
-            d_value += grad * m;
-        }
+        // The interpolation weights Σwₖ over the observed corners and the weighted sum Σwₖmₖ,
+        // each a trilinear interpolation (unobserved corners entering as 0), then normalised.
+        let (weight, d_weight) = trilinear(&corners.observed, &t);
         if weight < f64::from(self.min_weight) {
             return None;
         }
+        let (value, d_value) = trilinear(&corners.means, &t);
         let mean = value / weight;
-        // Quotient rule on Σwₖmₖ / Σwₖ.
+        // Quotient rule on Σwₖmₖ / Σwₖ; ∂t/∂p = 1/s.
         Some(IntensitySample {
             value: mean,
-            gradient: (d_value - d_weight * mean) * (1.0 / weight),
+            gradient: (d_value - d_weight * mean) * (1.0 / (weight * s)),
         })
     }
 
