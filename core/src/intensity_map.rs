@@ -52,9 +52,20 @@ pub struct IntensityMap {
     blocks: Vec<([i32; 3], Block)>,
     /// Observed cells.
     cells: usize,
-    /// Scratch for [`Self::insert_sweep`]: per cell, a point in it, the sum and the count.
-    sweep: FxHashMap<[i32; 3], (Vector3<f32>, f32, u32)>,
+    /// Scratch for [`Self::insert_sweep`].
+    sweep: SweepSums,
 }
+
+/// A sweep's returns summed per cell, block by block, before they enter the map.
+#[derive(Debug, Clone, Default)]
+struct SweepSums {
+    /// Per block of the map: its entry in `sums`, or [`UNTOUCHED`].
+    entry: Vec<u32>,
+    /// Per block the sweep touched: the block, and per cell the sum of η and the count.
+    sums: Vec<(u32, [(f32, u32); BLOCK_CELLS])>,
+}
+
+const UNTOUCHED: u32 = u32::MAX;
 
 /// The eight cells around the last lookup, for [`IntensityMap::sample_near`]: corner
 /// `a + 2b + 4c` is the cell `a`, `b`, `c` steps up along x, y, z from the lower one.
@@ -106,7 +117,7 @@ impl IntensityMap {
             index: FxHashMap::default(),
             blocks: Vec::new(),
             cells: 0,
-            sweep: FxHashMap::default(),
+            sweep: SweepSums::default(),
         }
     }
 
@@ -134,14 +145,24 @@ impl IntensityMap {
             return;
         }
         let (key, at) = split(self.key(p));
-        let block = match self.index.get(&key) {
+        let block = self.block(key);
+        self.observe(block, at, eta);
+    }
+
+    /// The index of the block with key `key`, created empty if absent.
+    fn block(&mut self, key: [i32; 3]) -> usize {
+        match self.index.get(&key) {
             Some(&b) => b as usize,
             None => {
                 self.index.insert(key, self.blocks.len() as u32);
                 self.blocks.push((key, Block::EMPTY));
                 self.blocks.len() - 1
             }
-        };
+        }
+    }
+
+    /// Adds one observation `eta` to cell `at` of block `block`.
+    fn observe(&mut self, block: usize, at: usize, eta: f32) {
         let block = &mut self.blocks[block].1;
         let count = &mut block.count[at];
         if *count == 0 {
@@ -158,17 +179,42 @@ impl IntensityMap {
     /// sweep — the next one would then be matched to its predecessor rather than to a map.
     pub fn insert_sweep(&mut self, returns: impl IntoIterator<Item = (Vector3<f32>, f32)>) {
         let mut sweep = std::mem::take(&mut self.sweep);
-        sweep.clear();
+        sweep.sums.clear();
+        // Successive returns mostly fall in one block: its entry is kept from one to the next.
+        let mut last: Option<([i32; 3], usize)> = None;
         for (p, eta) in returns {
             if !eta.is_finite() || !p.iter().all(|v| v.is_finite()) {
                 continue;
             }
-            let cell = sweep.entry(self.key(&p)).or_insert((p, 0.0, 0));
-            cell.1 += eta;
-            cell.2 += 1;
+            let (key, at) = split(self.key(&p));
+            let entry = match last {
+                Some((k, entry)) if k == key => entry,
+                _ => {
+                    let block = self.block(key);
+                    sweep.entry.resize(self.blocks.len(), UNTOUCHED);
+                    let entry = match sweep.entry[block] {
+                        UNTOUCHED => {
+                            sweep.entry[block] = sweep.sums.len() as u32;
+                            sweep.sums.push((block as u32, [(0.0, 0); BLOCK_CELLS]));
+                            sweep.sums.len() - 1
+                        }
+                        entry => entry as usize,
+                    };
+                    last = Some((key, entry));
+                    entry
+                }
+            };
+            let (sum, n) = &mut sweep.sums[entry].1[at];
+            *sum += eta;
+            *n += 1;
         }
-        for (at, sum, n) in sweep.values() {
-            self.insert(at, sum / *n as f32);
+        for (block, cells) in &sweep.sums {
+            sweep.entry[*block as usize] = UNTOUCHED;
+            for (at, &(sum, n)) in cells.iter().enumerate() {
+                if n > 0 {
+                    self.observe(*block as usize, at, sum / n as f32);
+                }
+            }
         }
         self.sweep = sweep;
     }
@@ -375,5 +421,14 @@ mod tests {
         // NaN returns are skipped, not averaged in.
         m.insert_sweep([(p, f32::NAN), (p, 50.0)]);
         assert!((m.sample(&p.cast()).unwrap().value - 50.0).abs() < 1e-4);
+        // A sweep going back and forth between cells of different blocks still gives each
+        // cell one observation, the mean of its returns.
+        let q = Vector3::new(10.5, 0.5, 0.5);
+        m.insert_sweep([(q, 10.0), (p, 80.0), (q, 30.0), (p, 100.0), (q, 50.0)]);
+        assert_eq!(m.len(), 2);
+        assert!((m.sample(&q.cast()).unwrap().value - 30.0).abs() < 1e-4);
+        // Three observations of p: 10, 90, 50 (count 3, mean 50), then 90.
+        let expected = 50.0 + (90.0 - 50.0) / 4.0;
+        assert!((m.sample(&p.cast()).unwrap().value - expected).abs() < 1e-4);
     }
 }
