@@ -245,6 +245,26 @@ impl IntensityMap {
     /// millimetres apart finds them there and skips the hashing; the map must not change while
     /// a `Corners` is in use.
     pub fn sample_near(&self, p: &Vector3<f64>, corners: &mut Corners) -> Option<IntensitySample> {
+        self.sample_with(p, corners, f64::from(self.min_weight))
+    }
+
+    /// [`Self::sample_near`] wherever any of the eight cells is observed, whatever their weight:
+    /// the interpolation is continuous there, so a point that had a sample keeps one, close to
+    /// it, when moved by a little.
+    pub fn sample_observed(
+        &self,
+        p: &Vector3<f64>,
+        corners: &mut Corners,
+    ) -> Option<IntensitySample> {
+        self.sample_with(p, corners, f64::MIN_POSITIVE)
+    }
+
+    fn sample_with(
+        &self,
+        p: &Vector3<f64>,
+        corners: &mut Corners,
+        min_weight: f64,
+    ) -> Option<IntensitySample> {
         let s = f64::from(self.voxel);
         // Cell centres sit at (i + ½)·s: the lower corner of the bracketing cube is i0.
         let u = p * (1.0 / s) - Vector3::repeat(0.5);
@@ -265,7 +285,7 @@ impl IntensityMap {
         // The interpolation weights Σwₖ over the observed corners and the weighted sum Σwₖmₖ,
         // each a trilinear interpolation (unobserved corners entering as 0), then normalised.
         let (weight, d_weight) = trilinear(&corners.observed, &t);
-        if weight < f64::from(self.min_weight) {
+        if weight < min_weight {
             return None;
         }
         let (value, d_value) = trilinear(&corners.means, &t);
@@ -299,6 +319,19 @@ impl IntensityMap {
             }
         }
     }
+}
+
+/// A map of 1 m cells with `min_weight` 0.5 and one observed cell, centred at (0.5, 0.5, 0.5),
+/// holding `eta`: a point's weight falls from 1 at the centre to 0 a cell away.
+#[cfg(test)]
+pub(crate) fn one_cell_map(eta: f32) -> IntensityMap {
+    let mut m = IntensityMap::new(&IntensityMapConfig {
+        voxel: 1.0,
+        max_count: 20,
+        min_weight: 0.5,
+    });
+    m.insert(&Vector3::new(0.5, 0.5, 0.5), eta);
+    m
 }
 
 #[cfg(test)]
@@ -402,6 +435,19 @@ mod tests {
         }
         // With the count capped at 4 the mean follows the change.
         assert!((m.sample(&p.cast()).unwrap().value - 90.0).abs() < 1.0);
+    }
+
+    #[test]
+    fn a_thinly_covered_point_has_an_observed_sample_only() {
+        let m = one_cell_map(40.0);
+        // 0.8 of the way to the next (unobserved) cell centre: weight 0.2.
+        let p = Vector3::new(1.3, 0.5, 0.5);
+        assert!(m.sample_near(&p, &mut Corners::default()).is_none());
+        let observed = m.sample_observed(&p, &mut Corners::default()).unwrap();
+        assert!((observed.value - 40.0).abs() < 1e-9);
+        // Where no cell around is observed there is nothing to interpolate.
+        let far = Vector3::new(5.0, 0.5, 0.5);
+        assert!(m.sample_observed(&far, &mut Corners::default()).is_none());
     }
 
     #[test]

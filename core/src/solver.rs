@@ -108,7 +108,26 @@ enum Shape {
 pub struct Correspondences {
     edges: Links,
     planes: Links,
-    corners: Vec<Corners>,
+    corners: Vec<IntensityLink>,
+}
+
+/// An intensity point's eight map cells, and whether it has a residual in the current round.
+#[derive(Debug, Default, Clone, Copy)]
+struct IntensityLink {
+    corners: Corners,
+    active: bool,
+}
+
+/// Which intensity points a [`build`] gives a residual.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum IntensitySet {
+    /// Those the map covers at this pose (a round's first system): the set is recorded.
+    Select,
+    /// The recorded set (a trial within the round), so that its cost and the system's are sums
+    /// over the same residuals. A point entering or leaving the map's cover as the pose moves
+    /// by a millimetre would make the cost jump by its whole residual; Levenberg–Marquardt then
+    /// rejected step after step for a rise no damping could remove.
+    Keep,
 }
 
 impl Correspondences {
@@ -166,15 +185,14 @@ pub fn align_with(
         let line = |_: &_, values: &_, vectors: &_, _: &_| line_model(config, values, vectors);
         let plane =
             |center: &_, _: &_, vectors: &_, near: &_| plane_model(config, center, vectors, near);
-        edge_links.update(
+        let updated = edge_links.update(
             &pose,
             &input.edges,
             maps.edges,
             config,
             &mut neighbours,
             line,
-        );
-        plane_links.update(
+        ) + plane_links.update(
             &pose,
             &input.planes,
             maps.planes,
@@ -182,18 +200,26 @@ pub fn align_with(
             &mut neighbours,
             plane,
         );
-        models.clear();
-        edges = edge_links.collect(&mut models);
-        planes = plane_links.collect(&mut models);
         let mut converged = false;
-        let system = last.insert(build(
-            &pose,
-            &models,
-            input,
-            maps.intensity,
-            config,
-            corners,
-        ));
+        // `last` is the system at `pose` with the models in hand: unless a point was
+        // re-associated, this round's would be the same, bit for bit.
+        let system = match last.as_mut() {
+            Some(system) if updated == 0 => system,
+            _ => {
+                models.clear();
+                edges = edge_links.collect(&mut models);
+                planes = plane_links.collect(&mut models);
+                last.insert(build(
+                    &pose,
+                    &models,
+                    input,
+                    maps.intensity,
+                    config,
+                    corners,
+                    IntensitySet::Select,
+                ))
+            }
+        };
         for _ in 0..config.inner_iterations.max(1) {
             if system.count == 0 {
                 break;
@@ -215,7 +241,15 @@ pub fn align_with(
                     config.hold_information,
                 ));
                 let candidate = exp(&step) * pose;
-                let trial = build(&candidate, &models, input, maps.intensity, config, corners);
+                let trial = build(
+                    &candidate,
+                    &models,
+                    input,
+                    maps.intensity,
+                    config,
+                    corners,
+                    IntensitySet::Keep,
+                );
                 iterations += 1;
                 let change = (trial.cost - system.cost).abs() / system.cost.max(f64::MIN_POSITIVE);
                 if trial.cost <= system.cost {
@@ -230,7 +264,10 @@ pub fn align_with(
                     converged = true;
                     break;
                 }
-                lambda *= 4.0;
+                // The damping scales the whole step by 1 / (1 + λ): from a small λ, growing it
+                // fourfold left the step as it was, and the trial was rejected again. At least
+                // halve it.
+                lambda = (4.0 * lambda).max(2.0 * lambda + 1.0);
             }
             if !accepted || converged {
                 break;
@@ -243,8 +280,10 @@ pub fn align_with(
     }
     // The last accepted trial was built at `pose` with the last round's models: it is the
     // final system (re-association happens only at the start of a round).
-    let system =
-        last.unwrap_or_else(|| build(&pose, &models, input, maps.intensity, config, corners));
+    let system = last.unwrap_or_else(|| {
+        let set = IntensitySet::Select;
+        build(&pose, &models, input, maps.intensity, config, corners, set)
+    });
     let info = plane_information(&pose, &models);
     let translational = info.translation / info.planes.max(1) as f64;
     let eigen = SymmetricEigen::new(translational);
@@ -376,7 +415,7 @@ impl Links {
         config: &SolverConfig,
         neighbours: &mut Vec<Vector3<f32>>,
         fit: impl Fn(&Vector3<f64>, &[f64; 3], &[Vector3<f64>; 3], &[Vector3<f32>]) -> Option<Shape>,
-    ) {
+    ) -> usize {
         let fresh = self.at.len() != points.len();
         if fresh {
             self.at.clear();
@@ -385,6 +424,7 @@ impl Links {
             self.models.resize(points.len(), None);
         }
         let limit_sq = config.reassociation_distance.powi(2);
+        let mut updated = 0;
         for (i, p) in points.iter().enumerate() {
             let q = (pose * Point3::from(*p)).coords;
             if !fresh && (q - self.at[i]).norm_squared() <= limit_sq {
@@ -392,7 +432,9 @@ impl Links {
             }
             self.at[i] = q;
             self.models[i] = associate(pose, p, &q, map, config, neighbours, &fit);
+            updated += 1;
         }
+        updated
     }
 
     /// Appends the current models to `models`; returns how many there are.
@@ -619,7 +661,8 @@ fn build(
     input: &AlignmentInput,
     intensity: &IntensityMap,
     config: &SolverConfig,
-    corners: &mut Vec<Corners>,
+    links: &mut Vec<IntensityLink>,
+    set: IntensitySet,
 ) -> System {
     let mut s = System {
         hessian: Matrix6::zeros(),
@@ -664,10 +707,21 @@ fn build(
     }
     if config.use_intensity {
         let weight = config.intensity_weight;
-        corners.resize(input.intensity.len(), Corners::default());
-        for (ip, corner) in input.intensity.iter().zip(corners.iter_mut()) {
+        links.resize(input.intensity.len(), IntensityLink::default());
+        for (ip, link) in input.intensity.iter().zip(links.iter_mut()) {
             let q = (pose * Point3::from(ip.point)).coords;
-            let Some(sample) = intensity.sample_near(&q, corner) else {
+            let sample = match set {
+                IntensitySet::Select => {
+                    let sample = intensity.sample_near(&q, &mut link.corners);
+                    link.active = sample.is_some();
+                    sample
+                }
+                IntensitySet::Keep if link.active => {
+                    intensity.sample_observed(&q, &mut link.corners)
+                }
+                IntensitySet::Keep => None,
+            };
+            let Some(sample) = sample else {
                 continue;
             };
             let r = weight * (ip.eta - sample.value);
@@ -1033,8 +1087,52 @@ mod jacobian_tests {
             intensity_weight: 0.01,
             ..SolverConfig::default()
         };
-        let cost = |pose: &Isometry3<f64>| build(pose, &[], &input, &map, &config, &mut Vec::new());
+        let cost = |pose: &Isometry3<f64>| {
+            build(
+                pose,
+                &[],
+                &input,
+                &map,
+                &config,
+                &mut Vec::new(),
+                IntensitySet::Select,
+            )
+        };
         assert_gradient_matches(cost, &pose, 1e-3);
+    }
+
+    /// Within a round, trials keep the residuals of the round's first system: a point moved out
+    /// of the map's cover by a millimetre still counts, so the costs compared are sums over the
+    /// same residuals.
+    #[test]
+    fn trials_keep_the_rounds_intensity_residuals() {
+        // The weight crosses the map's 0.5 at x = 1.
+        let map = crate::intensity_map::one_cell_map(40.0);
+        let input = AlignmentInput {
+            edges: vec![],
+            planes: vec![],
+            intensity: vec![IntensityPoint {
+                point: Vector3::new(0.995, 0.5, 0.5),
+                eta: 60.0,
+                normal: Vector3::zeros(),
+            }],
+        };
+        let config = SolverConfig::default();
+        let moved = Isometry3::translation(0.01, 0.0, 0.0);
+        let mut links = Vec::new();
+        let at = |pose: &Isometry3<f64>, links: &mut Vec<IntensityLink>, set| {
+            build(pose, &[], &input, &map, &config, links, set)
+        };
+        let start = at(&Isometry3::identity(), &mut links, IntensitySet::Select);
+        assert_eq!(start.intensity, 1);
+        let kept = at(&moved, &mut links, IntensitySet::Keep);
+        assert_eq!(kept.intensity, 1, "the trial keeps the residual");
+        assert!((kept.cost - start.cost).abs() < 1e-3 * start.cost);
+        let selected = at(&moved, &mut links, IntensitySet::Select);
+        assert_eq!(selected.intensity, 0, "a new round selects afresh");
+        // And a point the round left out stays out.
+        let kept = at(&Isometry3::identity(), &mut links, IntensitySet::Keep);
+        assert_eq!(kept.intensity, 0);
     }
 
     /// `cost`'s gradient at `pose` equals central finite differences along each axis of the
@@ -1077,7 +1175,15 @@ mod jacobian_tests {
                 ..SolverConfig::default()
             };
             let cost = |pose: &Isometry3<f64>| {
-                build(pose, &[model], &input, &map, &config, &mut Vec::new())
+                build(
+                    pose,
+                    &[model],
+                    &input,
+                    &map,
+                    &config,
+                    &mut Vec::new(),
+                    IntensitySet::Select,
+                )
             };
             let pose = exp(&Vector6::new(0.1, 0.2, -0.3, 0.5, 0.1, -0.2));
             assert_gradient_matches(cost, &pose, 1e-6);
