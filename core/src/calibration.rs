@@ -21,25 +21,43 @@ const RING_STEPS: [usize; 9] = [1, 2, 3, 4, 6, 8, 11, 15, 20];
 /// The ring steps tried across rings.
 const ACROSS_STEPS: [usize; 2] = [1, 2];
 
-/// Steps out from a point `p` through `candidates` (nearest first) while they lie within the
-/// surface gate `gate_sq` (squared distance from `p`), until one lies at least [`MIN_BASELINE`]
-/// from `p`; the last one reached. Runs four times for every normal estimated: kept to plain
-/// iteration, which compiles to a short loop.
+/// One step of a baseline walk from `p`: a candidate `q` within the surface gate `gate_sq`
+/// (squared distance from `p`) becomes the farthest reached; the walk goes on while that is
+/// nearer than [`MIN_BASELINE`]. A walk steps out through its candidates, nearest first, until
+/// this says stop or they run out, and keeps the last one reached. The walks run four times for
+/// every normal estimated: they are written out and inlined, since through closures or an
+/// iterator adapter the compiler left a call per step.
 #[inline(always)]
-fn step_out(
-    candidates: impl Iterator<Item = Vector3<f32>>,
-    p: &Vector3<f32>,
+fn reach(best: &mut Option<Vector3<f32>>, q: Vector3<f32>, p: &Vector3<f32>, gate_sq: f32) -> bool {
+    let distance_sq = (q - p).norm_squared();
+    if distance_sq >= gate_sq {
+        return false;
+    }
+    *best = Some(q);
+    distance_sq < MIN_BASELINE * MIN_BASELINE
+}
+
+/// The baseline walk along a ring from the `k`-th of its `positions` (see [`reach`]).
+#[inline(always)]
+fn walk_along(
+    positions: &[Vector3<f32>],
+    k: usize,
+    forward: bool,
     gate_sq: f32,
 ) -> Option<Vector3<f32>> {
+    let p = positions[k];
     let mut best = None;
-    for q in candidates {
-        let distance_sq = (q - p).norm_squared();
-        if distance_sq >= gate_sq {
+    for d in RING_STEPS {
+        let index = if forward {
+            k + d
+        } else if let Some(index) = k.checked_sub(d) {
+            index
+        } else {
             break;
-        }
-        best = Some(q);
-        if distance_sq >= MIN_BASELINE * MIN_BASELINE {
-            break;
+        };
+        match positions.get(index) {
+            Some(&q) if reach(&mut best, q, &p, gate_sq) => {}
+            _ => break,
         }
     }
     best
@@ -263,6 +281,41 @@ impl RangeImage {
             .map(|v| v as usize)
     }
 
+    /// The baseline walk across the rings from `p`, the return at ring `ring`, column
+    /// `column` (see [`reach`]).
+    #[inline(always)]
+    fn walk_across(
+        &self,
+        scan: &Scan<'_>,
+        (ring, column): (usize, usize),
+        upward: bool,
+        p: &Vector3<f32>,
+        gate_sq: f32,
+    ) -> Option<Vector3<f32>> {
+        let mut best = None;
+        for d in ACROSS_STEPS {
+            let r = if upward {
+                ring + d
+            } else if let Some(r) = ring.checked_sub(d) {
+                r
+            } else {
+                break;
+            };
+            let Some(j) = (r < self.rings).then(|| self.at(r, column)).flatten() else {
+                break;
+            };
+            if !reach(
+                &mut best,
+                Vector3::from(scan.points[j].position),
+                p,
+                gate_sq,
+            ) {
+                break;
+            }
+        }
+        best
+    }
+
     /// The unit normal of the surface through the neighbours of point `i` (the `k`-th of ring
     /// `ring`), if they lie on one surface.
     fn surface_normal(
@@ -273,7 +326,6 @@ impl RangeImage {
         i: usize,
         config: &CalibrationConfig,
     ) -> Option<Vector3<f32>> {
-        let pos = |j: usize| Vector3::from(scan.points[j].position);
         let positions = &self.ring_positions[ring];
         let p = positions[k];
         let range = self.range[i];
@@ -281,33 +333,15 @@ impl RangeImage {
         // until the baseline reaches MIN_BASELINE (a wall 2 m away puts neighbours 7 mm apart,
         // below the range noise, so adjacent points give noise for a normal).
         let near_sq = (config.neighbour_gap * range * 4.0 + MIN_BASELINE).powi(2);
-        let along_ring = |forward: bool| {
-            let reach = RING_STEPS.iter().map_while(|&d| {
-                let index = if forward { k + d } else { k.checked_sub(d)? };
-                positions.get(index).copied()
-            });
-            step_out(reach, &p, near_sq)
-        };
+        let along_ring = |forward: bool| walk_along(positions, k, forward, near_sq);
         let along = span(along_ring(false), along_ring(true), &p)?;
         // Across the rings, at the same azimuth: one ring away, or two when one is closer than
         // the baseline. Floors seen at a low angle put adjacent rings far apart, so the gate is
         // wide; the surface test is the normal's consistency.
         let column = usize::from(self.column[i]);
         let across_sq = (0.5 * range + 0.2).powi(2);
-        let across_ring = |upward: bool| {
-            let reach = ACROSS_STEPS.iter().map_while(|&d| {
-                let r = if upward {
-                    ring + d
-                } else {
-                    ring.checked_sub(d)?
-                };
-                (r < self.rings)
-                    .then(|| self.at(r, column))
-                    .flatten()
-                    .map(pos)
-            });
-            step_out(reach, &p, across_sq)
-        };
+        let across_ring =
+            |upward: bool| self.walk_across(scan, (ring, column), upward, &p, across_sq);
         let across = span(across_ring(false), across_ring(true), &p)?;
         let normal = along.cross(&across);
         let norm = normal.norm();

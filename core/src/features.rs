@@ -54,8 +54,10 @@ pub struct FeatureSelector {
     unreliable: Vec<bool>,
     /// Returns next to a chosen edge.
     suppressed: Vec<bool>,
-    /// Plane voxel → its entry in the sweep's planes and that return's σᴳ.
-    voxels: FxHashMap<(i32, i32, i32), (u32, f32)>,
+    /// Plane voxel → its entry in the sweep's planes.
+    voxels: FxHashMap<(i32, i32, i32), usize>,
+    /// Per plane of the sweep: its return's σᴳ.
+    plane_roughness: Vec<f32>,
     candidates: Vec<(f32, u32)>,
     /// A sector's edge candidates (combined σ above the threshold), roughest first.
     edge_candidates: Vec<(f32, u32)>,
@@ -86,6 +88,8 @@ impl FeatureSelector {
         out.intensity.clear();
         out.calibrated.clear();
         self.voxels.clear();
+        self.plane_roughness.clear();
+        let mut last_voxel = None;
         self.candidates.clear();
         let n = scan.points.len();
         for flags in [&mut self.unreliable, &mut self.suppressed] {
@@ -128,6 +132,9 @@ impl FeatureSelector {
             out.calibrated.push(feature(i));
         }
 
+        // The noise floor at 1 m; it falls as 1/r.
+        let noise_at_1m = noise_floor(config, k, 1.0);
+        let noise = |r: f32| noise_at_1m / r.max(0.1);
         let edge_threshold = config.edge_threshold * step_ratio.clamp(0.5, 4.0);
         let plane_threshold = config.plane_threshold * step_ratio.clamp(0.5, 4.0);
         for (members, positions) in image.ring_points.iter().zip(&image.ring_positions) {
@@ -229,8 +236,7 @@ impl FeatureSelector {
                         .map(|&(g, i, w)| (combined(g, i), w))
                         .filter(|&(sigma, w)| {
                             let i = members[w as usize] as usize;
-                            sigma > edge_threshold + 3.0 * noise_floor(config, k, image.range[i])
-                                && !unreliable[i]
+                            sigma > edge_threshold + 3.0 * noise(image.range[i]) && !unreliable[i]
                         }),
                 );
                 self.edge_candidates
@@ -257,9 +263,7 @@ impl FeatureSelector {
                     if self.unreliable[i] {
                         continue;
                     }
-                    if g < plane_threshold + noise_floor(config, k, image.range[i])
-                        && !self.suppressed[i]
-                    {
+                    if g < plane_threshold + noise(image.range[i]) && !self.suppressed[i] {
                         // One plane per voxel: the least flat return that still passes (the
                         // first of the sector's returns ranked roughest first, as selection
                         // always did). Keeping the flattest instead was measured: yard seed 19
@@ -273,17 +277,28 @@ impl FeatureSelector {
                             (p.y / s).floor() as i32,
                             (p.z / s).floor() as i32,
                         );
-                        match self.voxels.entry(key) {
-                            Entry::Vacant(v) => {
-                                v.insert((out.planes.len() as u32, g));
-                                out.planes.push(feature(i));
-                            }
-                            Entry::Occupied(mut o) => {
-                                let (at, kept) = o.get_mut();
-                                if g > *kept {
-                                    *kept = g;
-                                    out.planes[*at as usize] = feature(i);
+                        // Successive returns of a ring mostly share a voxel: its plane's index
+                        // is kept from one to the next instead of hashed again.
+                        let at = match last_voxel {
+                            Some((k, at)) if k == key => Some(at),
+                            _ => match self.voxels.entry(key) {
+                                Entry::Vacant(v) => {
+                                    v.insert(out.planes.len());
+                                    last_voxel = Some((key, out.planes.len()));
+                                    out.planes.push(feature(i));
+                                    self.plane_roughness.push(g);
+                                    None
                                 }
+                                Entry::Occupied(o) => {
+                                    last_voxel = Some((key, *o.get()));
+                                    Some(*o.get())
+                                }
+                            },
+                        };
+                        if let Some(at) = at {
+                            if g > self.plane_roughness[at] {
+                                self.plane_roughness[at] = g;
+                                out.planes[at] = feature(i);
                             }
                         }
                     }

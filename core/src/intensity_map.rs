@@ -88,7 +88,9 @@ fn trilinear(f: &[f64; 8], t: &Vector3<f64>) -> (f64, Vector3<f64>) {
         let (lo, hi) = (f[2 * yz], f[2 * yz + 1]);
         (lerp(lo, hi, t.x), hi - lo)
     };
-    let [(x00, dx00), (x10, dx10), (x01, dx01), (x11, dx11)] = [0, 1, 2, 3].map(along_x);
+    // Called one by one: through `array::map` the compiler left a call per lookup.
+    let ((x00, dx00), (x10, dx10)) = (along_x(0), along_x(1));
+    let ((x01, dx01), (x11, dx11)) = (along_x(2), along_x(3));
     let (y0, y1) = (lerp(x00, x10, t.y), lerp(x01, x11, t.y));
     let (dx0, dx1) = (lerp(dx00, dx10, t.y), lerp(dx01, dx11, t.y));
     let (dy0, dy1) = (x10 - x00, x11 - x01);
