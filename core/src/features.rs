@@ -59,7 +59,8 @@ pub struct FeatureSelector {
     /// Per plane of the sweep: its return's σᴳ.
     plane_roughness: Vec<f32>,
     candidates: Vec<(f32, u32)>,
-    /// A sector's edge candidates (combined σ above the threshold), roughest first.
+    /// A sector's edge candidates (reliable, combined σ clear of the threshold by three times
+    /// the noise), roughest first.
     edge_candidates: Vec<(f32, u32)>,
     /// Per ring, the position of the last return handed to the intensity map.
     last_kept: Vec<[f32; 3]>,
@@ -280,7 +281,7 @@ impl FeatureSelector {
                         // Successive returns of a ring mostly share a voxel: its plane's index
                         // is kept from one to the next instead of hashed again.
                         let at = match last_voxel {
-                            Some((k, at)) if k == key => Some(at),
+                            Some((voxel, at)) if voxel == key => Some(at),
                             _ => match self.voxels.entry(key) {
                                 Entry::Vacant(v) => {
                                     v.insert(out.planes.len());

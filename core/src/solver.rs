@@ -101,14 +101,15 @@ enum Shape {
 }
 
 /// What an alignment found for each point — its map correspondence and where it was made, its
-/// eight intensity cells — kept for another alignment of the same points against the same maps
+/// eight intensity cells (and whether its intensity residual is in the round's set, see
+/// `IntensitySet`) — kept for another alignment of the same points against the same maps
 /// (the same sweep deskewed again, its points moved by millimetres): each point keeps what is
 /// still valid for it, by the rule of [`SolverConfig::reassociation_distance`].
 #[derive(Debug, Default, Clone)]
 pub struct Correspondences {
     edges: Links,
     planes: Links,
-    corners: Vec<IntensityLink>,
+    intensity: Vec<IntensityLink>,
 }
 
 /// An intensity point's eight map cells, and whether it has a residual in the current round.
@@ -137,7 +138,7 @@ impl Correspondences {
             links.at.clear();
             links.models.clear();
         }
-        self.corners.clear();
+        self.intensity.clear();
     }
 }
 
@@ -171,7 +172,7 @@ pub fn align_with(
     let Correspondences {
         edges: edge_links,
         planes: plane_links,
-        corners,
+        intensity: intensity_links,
     } = kept;
     let mut neighbours = Vec::with_capacity(8);
     let mut lambda = 1e-4;
@@ -215,7 +216,7 @@ pub fn align_with(
                     input,
                     maps.intensity,
                     config,
-                    corners,
+                    intensity_links,
                     IntensitySet::Select,
                 ))
             }
@@ -247,7 +248,7 @@ pub fn align_with(
                     input,
                     maps.intensity,
                     config,
-                    corners,
+                    intensity_links,
                     IntensitySet::Keep,
                 );
                 iterations += 1;
@@ -282,7 +283,15 @@ pub fn align_with(
     // final system (re-association happens only at the start of a round).
     let system = last.unwrap_or_else(|| {
         let set = IntensitySet::Select;
-        build(&pose, &models, input, maps.intensity, config, corners, set)
+        build(
+            &pose,
+            &models,
+            input,
+            maps.intensity,
+            config,
+            intensity_links,
+            set,
+        )
     });
     let info = plane_information(&pose, &models);
     let translational = info.translation / info.planes.max(1) as f64;
