@@ -175,6 +175,18 @@ pub fn align_with(
         intensity: intensity_links,
     } = kept;
     let mut neighbours = Vec::with_capacity(8);
+    // A round's first system, which selects the intensity residuals its trials keep.
+    let round_start_system = |pose: &Isometry3<f64>, models: &[Model], links: &mut Vec<_>| {
+        build(
+            pose,
+            models,
+            input,
+            maps.intensity,
+            config,
+            links,
+            IntensitySet::Select,
+        )
+    };
     let mut lambda = 1e-4;
     let mut iterations = 0;
     let mut edges = 0;
@@ -210,15 +222,7 @@ pub fn align_with(
                 models.clear();
                 edges = edge_links.collect(&mut models);
                 planes = plane_links.collect(&mut models);
-                last.insert(build(
-                    &pose,
-                    &models,
-                    input,
-                    maps.intensity,
-                    config,
-                    intensity_links,
-                    IntensitySet::Select,
-                ))
+                last.insert(round_start_system(&pose, &models, intensity_links))
             }
         };
         for _ in 0..config.inner_iterations.max(1) {
@@ -281,18 +285,7 @@ pub fn align_with(
     }
     // The last accepted trial was built at `pose` with the last round's models: it is the
     // final system (re-association happens only at the start of a round).
-    let system = last.unwrap_or_else(|| {
-        let set = IntensitySet::Select;
-        build(
-            &pose,
-            &models,
-            input,
-            maps.intensity,
-            config,
-            intensity_links,
-            set,
-        )
-    });
+    let system = last.unwrap_or_else(|| round_start_system(&pose, &models, intensity_links));
     let info = plane_information(&pose, &models);
     let translational = info.translation / info.planes.max(1) as f64;
     let eigen = SymmetricEigen::new(translational);
