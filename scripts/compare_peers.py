@@ -359,8 +359,7 @@ machine:
 
 {table(results)}
 
-Glint's figures are provisional: the odometry is being made faster; rerun the command for
-current ones (outputs and logs in `target/peers/`).
+Outputs and logs are in `target/peers/`.
 """
 
 
