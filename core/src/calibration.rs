@@ -48,19 +48,22 @@ fn walk_along(
     let p = positions[k];
     let mut best = None;
     for d in RING_STEPS {
-        let index = if forward {
-            k + d
-        } else if let Some(index) = k.checked_sub(d) {
-            index
-        } else {
-            break;
-        };
-        match positions.get(index) {
+        match step(k, d, forward).and_then(|index| positions.get(index)) {
             Some(&q) if reach(&mut best, q, &p, gate_sq) => {}
             _ => break,
         }
     }
     best
+}
+
+/// `d` places up (or down) from `k`, if not below 0.
+#[inline(always)]
+fn step(k: usize, d: usize, up: bool) -> Option<usize> {
+    if up {
+        Some(k + d)
+    } else {
+        k.checked_sub(d)
+    }
 }
 
 /// The tangent through `p` from its neighbours on either side: central when both exist,
@@ -294,14 +297,10 @@ impl RangeImage {
     ) -> Option<Vector3<f32>> {
         let mut best = None;
         for d in ACROSS_STEPS {
-            let r = if upward {
-                ring + d
-            } else if let Some(r) = ring.checked_sub(d) {
-                r
-            } else {
-                break;
-            };
-            let Some(j) = (r < self.rings).then(|| self.at(r, column)).flatten() else {
+            let Some(j) = step(ring, d, upward)
+                .filter(|&r| r < self.rings)
+                .and_then(|r| self.at(r, column))
+            else {
                 break;
             };
             if !reach(

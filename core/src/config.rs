@@ -326,6 +326,7 @@ impl OdometryConfig {
             }
         }
         let positive = "must be a finite number > 0";
+        let non_negative = "must be a finite number >= 0";
         let (c, f, i, l, s) = (
             &self.calibration,
             &self.features,
@@ -335,6 +336,8 @@ impl OdometryConfig {
         );
         let pos32 = |v: f32| v.is_finite() && v > 0.0;
         let pos64 = |v: f64| v.is_finite() && v > 0.0;
+        let non_negative32 = |v: f32| v.is_finite() && v >= 0.0;
+        let non_negative64 = |v: f64| v.is_finite() && v >= 0.0;
         let cos = |v: f32| v.is_finite() && v > 0.0 && v <= 1.0;
         check(
             "calibration.min_cos_incidence",
@@ -363,8 +366,8 @@ impl OdometryConfig {
         check(
             "calibration.normal_spacing",
             c.normal_spacing,
-            c.normal_spacing.is_finite() && c.normal_spacing >= 0.0,
-            "must be a finite number >= 0",
+            non_negative32(c.normal_spacing),
+            non_negative,
         )?;
         check(
             "features.neighbours",
@@ -381,14 +384,14 @@ impl OdometryConfig {
         check(
             "features.geometric_weight",
             f.geometric_weight,
-            f.geometric_weight.is_finite() && f.geometric_weight >= 0.0,
-            "must be a finite number >= 0",
+            non_negative32(f.geometric_weight),
+            non_negative,
         )?;
         check(
             "features.intensity_weight",
             f.intensity_weight,
-            f.intensity_weight.is_finite() && f.intensity_weight >= 0.0,
-            "must be a finite number >= 0",
+            non_negative32(f.intensity_weight),
+            non_negative,
         )?;
         check(
             "features.edge_threshold",
@@ -411,8 +414,8 @@ impl OdometryConfig {
         check(
             "features.min_range",
             f.min_range,
-            f.min_range.is_finite() && f.min_range >= 0.0,
-            "must be a finite number >= 0",
+            non_negative32(f.min_range),
+            non_negative,
         )?;
         check(
             "features.max_range",
@@ -429,8 +432,8 @@ impl OdometryConfig {
         check(
             "features.intensity_map_spacing",
             f.intensity_map_spacing,
-            f.intensity_map_spacing.is_finite() && f.intensity_map_spacing >= 0.0,
-            "must be a finite number >= 0",
+            non_negative32(f.intensity_map_spacing),
+            non_negative,
         )?;
         check("intensity_map.voxel", i.voxel, pos32(i.voxel), positive)?;
         check(
@@ -455,8 +458,8 @@ impl OdometryConfig {
         check(
             "local_map.min_spacing",
             l.min_spacing,
-            l.min_spacing.is_finite() && l.min_spacing >= 0.0,
-            "must be a finite number >= 0",
+            non_negative32(l.min_spacing),
+            non_negative,
         )?;
         check(
             "local_map.radius",
@@ -521,14 +524,14 @@ impl OdometryConfig {
         check(
             "solver.angular_noise",
             s.angular_noise,
-            s.angular_noise.is_finite() && s.angular_noise >= 0.0,
-            "must be a finite number >= 0",
+            non_negative64(s.angular_noise),
+            non_negative,
         )?;
         check(
             "solver.intensity_weight",
             s.intensity_weight,
-            s.intensity_weight.is_finite() && s.intensity_weight >= 0.0,
-            "must be a finite number >= 0",
+            non_negative64(s.intensity_weight),
+            non_negative,
         )?;
         check(
             "solver.huber_intensity",
@@ -545,14 +548,14 @@ impl OdometryConfig {
         check(
             "solver.cost_tolerance",
             s.cost_tolerance,
-            s.cost_tolerance.is_finite() && s.cost_tolerance >= 0.0,
-            "must be a finite number >= 0",
+            non_negative64(s.cost_tolerance),
+            non_negative,
         )?;
         check(
             "solver.degeneracy_threshold",
             s.degeneracy_threshold,
-            s.degeneracy_threshold.is_finite() && s.degeneracy_threshold >= 0.0,
-            "must be a finite number >= 0",
+            non_negative64(s.degeneracy_threshold),
+            non_negative,
         )?;
         Ok(())
     }
