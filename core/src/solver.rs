@@ -77,7 +77,23 @@ pub struct Alignment {
     pub iterations: usize,
     /// Mean robust cost per residual at the end.
     pub cost: f64,
+    /// The pose's covariance from the final normal equations, over `[δθ, δt]`: a rotation δθ
+    /// about the sensor's position and a translation δt of it, both along the world (map) axes,
+    /// rad and m, the error of `pose` being `exp(δθ)` about the sensor then `δt`. It describes
+    /// one sweep's pose against the local map, not the drift accumulated over the run: the
+    /// inverse of the residuals' information, each counted as independent with the noise of a
+    /// plane seen head-on ([`SolverConfig::plane_noise`]; the weights scale the others to it),
+    /// plus the errors no count of residuals averages away ([`SolverConfig::angular_noise`] on
+    /// each rotation, [`SolverConfig::motion_noise`] on each translation). A direction the step
+    /// leaves at the prediction (see [`SolverConfig::hold_information`]) gets [`HELD_SIGMA`]²
+    /// instead, displacement at the returns' RMS range.
+    pub covariance: Matrix6<f64>,
 }
+
+/// 1σ (m) given to a direction the alignment held at the prediction: it was not measured, and no
+/// consumer should fuse it as if it had been. Rotations read as the displacement they cause at
+/// the returns' RMS range.
+pub const HELD_SIGMA: f64 = 1.0;
 
 /// A geometric correspondence fixed for one round: residual `e = P·(T·p − c)`, where `P` is the
 /// projection onto the line's normal space (edges) or onto the plane normal (planes).
@@ -304,6 +320,7 @@ pub fn align_with(
     } else {
         0.0
     };
+    let covariance = pose_covariance(&system, &pose, config);
     Alignment {
         pose,
         edges,
@@ -316,7 +333,41 @@ pub fn align_with(
             || rotational_degeneracy < config.rotational_degeneracy_threshold,
         iterations,
         cost: system.cost / system.count.max(1) as f64,
+        covariance,
     }
+}
+
+/// [`Alignment::covariance`] from the system at the final pose: the inverse of its information
+/// in the balanced frame, where the held directions are the same as the step's (see
+/// [`damped_step`]), then back to rad for the rotations.
+fn pose_covariance(system: &System, pose: &Isometry3<f64>, config: &SolverConfig) -> Matrix6<f64> {
+    let frame = Balanced::new(system, pose);
+    let eigen = SymmetricEigen::new(frame.hessian(system));
+    let largest = eigen.eigenvalues.max().max(1e-12);
+    let held = (largest * NULL_INFORMATION).max(config.hold_information);
+    // The balanced information is per geometric correspondence: times their count, it is the
+    // whole sweep's, in units of the head-on plane noise.
+    let correspondences = frame.per_correspondence.recip();
+    let noise = config.plane_noise * config.plane_noise;
+    let mut balanced = Matrix6::zeros();
+    for i in 0..6 {
+        let value = eigen.eigenvalues[i];
+        let variance = if system.count == 0 || value <= held {
+            HELD_SIGMA * HELD_SIGMA
+        } else {
+            noise / (value * correspondences)
+        };
+        let v = eigen.eigenvectors.column(i);
+        balanced += v * v.transpose() * variance;
+    }
+    // Balanced coordinates are [ρ·δθ, δt]: rotations back to rad.
+    let rotation = 1.0 / frame.rms_range;
+    let scale = Matrix6::from_diagonal(&Vector6::new(rotation, rotation, rotation, 1.0, 1.0, 1.0));
+    let (angular, motion) = (config.angular_noise.powi(2), config.motion_noise.powi(2));
+    scale * balanced * scale
+        + Matrix6::from_diagonal(&Vector6::new(
+            angular, angular, angular, motion, motion, motion,
+        ))
 }
 
 /// The Levenberg–Marquardt step in the eigenbasis of the balanced normal equations (see
@@ -353,6 +404,8 @@ struct Balanced {
     /// δ = A·y: y's rotation part is ρ·ω about the sensor, its translation part the sensor's.
     to_perturbation: Matrix6<f64>,
     per_correspondence: f64,
+    /// ρ, m.
+    rms_range: f64,
 }
 
 impl Balanced {
@@ -374,6 +427,7 @@ impl Balanced {
         Self {
             to_perturbation: a,
             per_correspondence: 1.0 / (system.count - system.intensity).max(1) as f64,
+            rms_range,
         }
     }
 
@@ -888,6 +942,22 @@ mod tests {
         let error = log(&(a.pose.inverse() * truth));
         assert!(error.norm() < 1e-4, "error {error}, {a:?}");
         assert!(!a.degenerate, "{}", a.degeneracy);
+        // Every direction measured: the residuals add little to the floors.
+        let config = SolverConfig::default();
+        for i in 0..6 {
+            let floor = if i < 3 {
+                config.angular_noise
+            } else {
+                config.motion_noise
+            };
+            let sigma = a.covariance[(i, i)].sqrt();
+            assert!(
+                sigma >= floor && sigma < 1.5 * floor,
+                "{i}: {}",
+                a.covariance
+            );
+        }
+        assert_eq!(a.covariance, a.covariance.transpose());
     }
 
     #[test]
@@ -933,6 +1003,14 @@ mod tests {
             "{}",
             a.weakest_direction
         );
+        // The covariance says which direction: the axis was held, height was measured. (Seen
+        // from 15 m away on average, roll inside the corridor is weak too, and mixes with y.)
+        let c = &a.covariance;
+        assert!(c[(3, 3)] >= 0.5 * HELD_SIGMA * HELD_SIGMA, "{c}");
+        assert!(c[(5, 5)] < 1e-3, "{c}");
+        let translation = SymmetricEigen::new(c.fixed_view::<3, 3>(3, 3).into_owned());
+        let widest = translation.eigenvalues.imax();
+        assert!(translation.eigenvectors[(0, widest)].abs() > 0.99, "{c}");
     }
 
     #[test]
@@ -1011,6 +1089,10 @@ mod tests {
             g.pose.translation.vector.x.abs() < 0.05,
             "geometry alone cannot see the offset"
         );
+        // With intensity the axis is measured (to about the floor); without, it was held.
+        let (with, without) = (a.covariance[(3, 3)], g.covariance[(3, 3)]);
+        assert!(with < 1e-3, "{}", a.covariance);
+        assert!(without >= 0.5 * HELD_SIGMA * HELD_SIGMA, "{}", g.covariance);
         // Trilinear cells make the cost piecewise smooth: near the minimum a step can raise it
         // by a hair however it is damped. Stopping there (`cost_tolerance`) instead of retrying
         // saves trials and gives the same pose.

@@ -44,7 +44,7 @@ use nalgebra::{Isometry3, Vector3, Vector6};
 
 use crate::capture::{replay_stream, CaptureReport};
 use crate::outputs::{write_map, TrajectoryWriter};
-use crate::publish::{PoseBus, PoseSample};
+use crate::publish::{base_covariance, PoseBus, PoseSample};
 
 /// How fast a capture is replayed.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -1161,21 +1161,32 @@ impl Sink {
                 self.period_ns = dt;
             }
         }
+        // The published frames are the odometry's world turned by the mounting (odom), and by
+        // the back end's correction as well (map).
+        let covariance = |frame_from_world: &Isometry3<f64>, base: &Isometry3<f64>| {
+            estimate
+                .alignment
+                .as_ref()
+                .map(|a| base_covariance(&a.covariance, frame_from_world, &estimate.pose, base))
+        };
         let sample = PoseSample {
             time_ns: estimate.time_ns,
             pose,
             velocity: twist,
             flags,
             quality: e.quality,
+            covariance: covariance(&self.base_from_sensor, &pose),
         };
         let map_pose = e.map_from_odom * estimate.pose;
+        let map_base = to_base(&self.base_from_sensor, &map_pose, &estimate.velocity).0;
         let map_sample = PoseSample {
-            pose: to_base(&self.base_from_sensor, &map_pose, &estimate.velocity).0,
+            pose: map_base,
             flags: if e.loop_closed {
                 flags.with(StatusFlags::LOOP_CLOSED)
             } else {
                 flags
             },
+            covariance: covariance(&(self.base_from_sensor * e.map_from_odom), &map_base),
             ..sample
         };
         if let Some(b) = bus {

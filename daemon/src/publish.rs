@@ -4,13 +4,13 @@
 
 use anyhow::{Context, Result};
 use glint_ipc::{Domain, Frame, Pose, PosePublisher, Status, StatusFlags};
-use nalgebra::{Isometry3, Vector6};
+use nalgebra::{Isometry3, Matrix6, Vector6};
 
-/// Nominal 1σ of a tracked position (m) and heading (rad) for the covariance's diagonal: a
-/// placeholder scale, inflated when degenerate or lost, until it comes from the normal
-/// equations.
+/// 1σ of a position (m) and an angle (rad) for a pose without an alignment's covariance (the
+/// first sweep, a lost sweep's prediction), inflated a hundredfold there: not a measurement.
 const NOMINAL_POSITION_SIGMA: f64 = 0.02;
 const NOMINAL_ANGLE_SIGMA: f64 = 0.002;
+const UNMEASURED_INFLATION: f64 = 100.0;
 
 /// One pose of the base, ready to publish.
 #[derive(Debug, Clone, Copy)]
@@ -25,6 +25,34 @@ pub struct PoseSample {
     pub flags: StatusFlags,
     /// Match quality, 0..=1.
     pub quality: f32,
+    /// The pose's covariance over `[x, y, z, roll, pitch, yaw]` of `base_link` in the pose's
+    /// frame (see [`base_covariance`]), when the sweep was aligned.
+    pub covariance: Option<Matrix6<f64>>,
+}
+
+/// The covariance of the published `base_link` pose, over `[x, y, z, roll, pitch, yaw]` in the
+/// published frame (the wire's order, rotations about that frame's axes), from the
+/// alignment's over `[δθ, δt]` in the odometry's world frame about the sensor
+/// (`glint_core::solver::Alignment::covariance`). `frame_from_world` takes the odometry's world
+/// frame to the published one, `sensor` is the sensor's pose in the world and `base` the
+/// published pose. A rotation δθ about the sensor moves the base by δθ × (base − sensor) as well.
+pub fn base_covariance(
+    covariance: &Matrix6<f64>,
+    frame_from_world: &Isometry3<f64>,
+    sensor: &Isometry3<f64>,
+    base: &Isometry3<f64>,
+) -> Matrix6<f64> {
+    let rotation = frame_from_world.rotation.to_rotation_matrix().into_inner();
+    let lever = base.translation.vector - (frame_from_world * sensor).translation.vector;
+    let mut jacobian = Matrix6::zeros();
+    jacobian
+        .fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(-lever.cross_matrix() * rotation));
+    jacobian.fixed_view_mut::<3, 3>(0, 3).copy_from(&rotation);
+    jacobian.fixed_view_mut::<3, 3>(3, 0).copy_from(&rotation);
+    let published = jacobian * covariance * jacobian.transpose();
+    // Symmetric to the last bit, as consumers may check.
+    (published + published.transpose()) * 0.5
 }
 
 /// Publishes the daemon's poses and status.
@@ -88,13 +116,6 @@ impl PoseBus {
 
 fn to_wire(sample: &PoseSample, sequence: u64, frame: Frame) -> Pose {
     let flags = sample.flags;
-    let inflation = if flags.intersects(StatusFlags::LOST.with(StatusFlags::INITIALISING)) {
-        100.0
-    } else if flags.contains(StatusFlags::DEGENERATE) {
-        10.0
-    } else {
-        1.0
-    };
     let mut pose = Pose::new(sequence, sample.time_ns, frame);
     let t = sample.pose.translation.vector;
     let q = sample.pose.rotation.coords; // x, y, z, w
@@ -103,15 +124,113 @@ fn to_wire(sample: &PoseSample, sequence: u64, frame: Frame) -> Pose {
     let v = sample.velocity;
     pose.angular_velocity = [v[0], v[1], v[2]];
     pose.linear_velocity = [v[3], v[4], v[5]];
-    for i in 0..6 {
-        let sigma = if i < 3 {
-            NOMINAL_POSITION_SIGMA
-        } else {
-            NOMINAL_ANGLE_SIGMA
-        } * inflation;
-        pose.covariance[i * 6 + i] = sigma * sigma;
+    let measured = sample
+        .covariance
+        .filter(|c| c.iter().all(|v| v.is_finite()))
+        .filter(|_| !flags.intersects(StatusFlags::LOST.with(StatusFlags::INITIALISING)));
+    match measured {
+        Some(c) => {
+            for (i, v) in pose.covariance.iter_mut().enumerate() {
+                *v = c[(i / 6, i % 6)];
+            }
+        }
+        None => {
+            for i in 0..6 {
+                let sigma = if i < 3 {
+                    NOMINAL_POSITION_SIGMA
+                } else {
+                    NOMINAL_ANGLE_SIGMA
+                } * UNMEASURED_INFLATION;
+                pose.covariance[i * 6 + i] = sigma * sigma;
+            }
+        }
     }
     pose.quality = sample.quality.clamp(0.0, 1.0);
     pose.status = flags;
     pose
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+    fn sample(covariance: Option<Matrix6<f64>>, flags: StatusFlags) -> PoseSample {
+        PoseSample {
+            time_ns: 1,
+            pose: Isometry3::identity(),
+            velocity: Vector6::zeros(),
+            flags,
+            quality: 1.0,
+            covariance,
+        }
+    }
+
+    /// [δθ, δt] becomes [x, y, z, roll, pitch, yaw], row-major, turned with the frame.
+    #[test]
+    fn the_covariance_is_reordered_and_turned_into_the_published_frame() {
+        // δt along world x only (1 cm), δθ about world z only (1 mrad).
+        let mut c = Matrix6::zeros();
+        c[(3, 3)] = 1e-4;
+        c[(2, 2)] = 1e-6;
+        let identity = Isometry3::identity();
+        let same = base_covariance(&c, &identity, &identity, &identity);
+        assert_eq!(same[(0, 0)], 1e-4);
+        assert_eq!(same[(5, 5)], 1e-6);
+        // A frame turned 90° about z: world x is the frame's y.
+        let turned = Isometry3::from_parts(
+            Translation3::new(5.0, 0.0, 0.0),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::FRAC_PI_2),
+        );
+        let sensor = Isometry3::identity();
+        let base = turned * sensor;
+        let t = base_covariance(&c, &turned, &sensor, &base);
+        assert!(
+            (t[(1, 1)] - 1e-4).abs() < 1e-12 && t[(0, 0)].abs() < 1e-12,
+            "{t}"
+        );
+        assert!((t[(5, 5)] - 1e-6).abs() < 1e-12, "{t}");
+        let wire = to_wire(&sample(Some(t), StatusFlags::TRACKING), 0, Frame::ODOM);
+        assert_eq!(wire.covariance[7], t[(1, 1)]);
+        assert_eq!(wire.covariance[35], t[(5, 5)]);
+    }
+
+    /// A base 2 m ahead of the sensor swings 2 mm sideways per mrad of yaw about the sensor.
+    #[test]
+    fn a_rotation_about_the_sensor_moves_the_base_by_its_lever_arm() {
+        let mut c = Matrix6::zeros();
+        c[(2, 2)] = 1e-6;
+        let sensor = Isometry3::identity();
+        let base = Isometry3::translation(2.0, 0.0, 0.0);
+        let b = base_covariance(&c, &Isometry3::identity(), &sensor, &base);
+        assert!((b[(1, 1)] - 4e-6).abs() < 1e-15, "{b}");
+        assert!(b[(0, 0)].abs() < 1e-15, "{b}");
+        // Position and yaw move together.
+        assert!(
+            (b[(1, 5)] - 2e-6).abs() < 1e-15 && b[(1, 5)] == b[(5, 1)],
+            "{b}"
+        );
+    }
+
+    /// Without an alignment, or lost, the covariance is the nominal one inflated: never a
+    /// measurement, never NaN.
+    #[test]
+    fn an_unmeasured_pose_gets_an_inflated_nominal_covariance() {
+        let mut nan = Matrix6::identity() * 1e-6;
+        nan[(0, 0)] = f64::NAN;
+        for s in [
+            sample(None, StatusFlags::TRACKING),
+            sample(Some(Matrix6::identity() * 1e-6), StatusFlags::LOST),
+            sample(Some(nan), StatusFlags::TRACKING),
+        ] {
+            let wire = to_wire(&s, 0, Frame::ODOM);
+            // (2 m)² and (0.2 rad)².
+            let c = wire.covariance;
+            assert!(
+                (c[0] - 4.0).abs() < 1e-9 && (c[35] - 0.04).abs() < 1e-9,
+                "{c:?}"
+            );
+            assert!(wire.first_non_finite_field().is_none());
+        }
+    }
 }

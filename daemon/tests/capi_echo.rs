@@ -22,7 +22,7 @@ use std::sync::Arc;
 use std::thread;
 use std::time::{Duration, Instant};
 
-use glint_ipc::{Domain, Frame, Pose, PosePublisher, PoseStream, PoseSubscriber};
+use glint_ipc::{Domain, Frame, Pose, PosePublisher, PoseStream, PoseSubscriber, StatusFlags};
 
 const PROBE: u64 = u64::MAX;
 
@@ -336,7 +336,35 @@ fn c_and_cpp_examples_receive_every_pose_the_rust_subscriber_receives() {
     let sweeps = replay_to_end(&capture, &domain, &dir.join("trajectory.tum"));
     assert!(sweeps >= 20, "a 4 s capture has ~40 sweeps, got {sweeps}");
 
-    let expected: Vec<Line> = rust.finish().iter().map(Line::of).collect();
+    let poses = rust.finish();
+    // Tracked poses carry the alignment's covariance: symmetric, and on the warehouse's
+    // well-constrained geometry a few millimetres (the old nominal 2 cm, or the 2 m of an
+    // unmeasured pose, would fail).
+    let tracked: Vec<&Pose> = poses
+        .iter()
+        .filter(|p| p.status.contains(StatusFlags::TRACKING))
+        .collect();
+    assert!(
+        tracked.len() + 2 >= poses.len(),
+        "{} tracked",
+        tracked.len()
+    );
+    for p in tracked {
+        let c = p.covariance;
+        for i in 0..6 {
+            for j in 0..6 {
+                assert_eq!(c[i * 6 + j], c[j * 6 + i], "{c:?}");
+            }
+        }
+        for i in 0..3 {
+            let sigma = c[i * 7].sqrt();
+            assert!(
+                (0.004..0.015).contains(&sigma),
+                "position 1σ {sigma}: {c:?}"
+            );
+        }
+    }
+    let expected: Vec<Line> = poses.iter().map(Line::of).collect();
     assert_eq!(
         expected.len(),
         sweeps,
