@@ -3,11 +3,12 @@
 
     python3 scripts/memory_bench.py                   # 10-minute vs 1-minute warehouse run
     python3 scripts/memory_bench.py --glintd target/release/glintd --long 300
+    python3 scripts/memory_bench.py --slam            # the same with the back end
 
 Simulates a warehouse run of --short and of --long seconds (same seed), replays each through
-`glintd replay CAPTURE --trajectory OUT.tum --no-publish --no-loop` (the odometry; the back
-end's keyframes grow with the path) (add --map to also build the whole
-run's map) and reads each replay's peak resident set size from the kernel: wait4()'s
+`glintd replay CAPTURE --trajectory OUT.tum --no-publish --no-loop` (the odometry; with
+--slam, the full SLAM, whose graph grows with the path: a node per keyframe, while a keyframe
+that revisits a place releases its points) (add --map to also build the whole run's map) and reads each replay's peak resident set size from the kernel: wait4()'s
 ru_maxrss for that child alone (and /proc/PID/status VmHWM, sampled while it runs, as a
 cross-check). Prints both peaks and their ratio, and exits 1 if long / short > 1.5 (the floor
 of issue 5: memory stays flat on an endless run).
@@ -66,10 +67,12 @@ def vm_hwm_kib(pid):
         return 0
 
 
-def replay_peak(glintd, run_dir, with_map):
+def replay_peak(glintd, run_dir, with_map, slam):
     """Replays the run; returns (peak RSS in MiB from wait4, VmHWM sampled, seconds, log)."""
     cmd = [glintd, "replay", os.path.join(run_dir, "scan.pcap"),
-           "--trajectory", os.path.join(run_dir, "est.tum"), "--no-publish", "--no-loop"]
+           "--trajectory", os.path.join(run_dir, "est.tum"), "--no-publish"]
+    if not slam:
+        cmd += ["--no-loop"]
     if with_map:
         cmd += ["--map", os.path.join(run_dir, "map.pcd")]
     log_path = os.path.join(run_dir, "replay.log")
@@ -105,6 +108,8 @@ def main():
     ap.add_argument("--seed", type=int, default=1, help="warehouse seed (default 1)")
     ap.add_argument("--map", action="store_true",
                     help="also build and write the whole run's map (--map OUT.pcd)")
+    ap.add_argument("--slam", action="store_true",
+                    help="replay with the back end (default: odometry only, --no-loop)")
     ap.add_argument("--out", default=os.path.join(REPO, "target", "memory-bench"),
                     help="folder for the simulated runs (default target/memory-bench)")
     args = ap.parse_args()
@@ -124,15 +129,18 @@ def main():
         peaks = {}
         for seconds in (args.short, args.long):
             run_dir = simulate(glintd, args.seed, seconds, args.out)
-            rss, hwm, elapsed, log = replay_peak(glintd, run_dir, args.map)
+            rss, hwm, elapsed, log = replay_peak(glintd, run_dir, args.map, args.slam)
             with open(log) as f:
                 text = f.read()
             sweeps = re.search(r"sweeps: (\d+)", text)
             timing = re.search(r"per sweep: median ([0-9.]+) ms", text)
+            backend = re.search(r"back end: (\d+) keyframes.*; (\d+) keyframes released", text)
             print(f"  {seconds:g} s run: {sweeps.group(1) if sweeps else '?'} sweeps, "
                   f"peak RSS {rss:.1f} MiB (VmHWM sampled {hwm:.1f} MiB), "
                   f"replay {elapsed:.0f} s wall"
-                  + (f", median {timing.group(1)} ms per sweep" if timing else ""), flush=True)
+                  + (f", median {timing.group(1)} ms per sweep" if timing else "")
+                  + (f", {backend.group(1)} keyframes ({backend.group(2)} released)"
+                     if backend else ""), flush=True)
             peaks[seconds] = rss
     except Failure as e:
         print(f"memory_bench: {e}", file=sys.stderr)

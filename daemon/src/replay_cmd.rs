@@ -199,12 +199,13 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     if let Some(slam) = &summary.slam {
         let st = &slam.stats;
         say!(
-            "back end: {} keyframes; loops found {}, verified {}, accepted {}, rejected {}",
+            "back end: {} keyframes; loops found {}, verified {}, accepted {}, rejected {}; {} keyframes released their points as redundant",
             st.keyframes,
             st.loops_found,
             st.verified,
             st.accepted,
-            st.rejected
+            st.rejected,
+            st.released
         );
         say!(
             "  per keyframe: descriptor median {:.2} ms, candidate search median {:.2} ms (p99 {:.2}); verification median {:.1} ms per candidate ({}); optimisation median {:.1} ms per loop ({})",

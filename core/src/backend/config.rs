@@ -25,6 +25,14 @@ pub struct KeyframeConfig {
     pub max_planes: usize,
     /// Calibrated points kept (for the descriptor and the verification's intensity map).
     pub max_cloud: usize,
+    /// A keyframe within this of an earlier one that still holds its points (at the graph's
+    /// poses, and not from the stretch of path just behind it) releases its own once the back
+    /// end has processed it, m; 0 keeps every keyframe's. A robot that drives the same aisles for
+    /// months would otherwise add ~80 kB per metre driven; a released keyframe keeps its node,
+    /// edges and descriptor (~5 kB), so the trajectory is still corrected through it, but it is
+    /// no loop candidate: the earlier keyframe stands for the place. The keyframe spacing: on a
+    /// second pass along a path, nearly every new keyframe has an old one this close.
+    pub redundant_within: f64,
 }
 
 impl Default for KeyframeConfig {
@@ -37,6 +45,7 @@ impl Default for KeyframeConfig {
             max_edges: 1000,
             max_planes: 1500,
             max_cloud: 3000,
+            redundant_within: 1.0,
         }
     }
 }

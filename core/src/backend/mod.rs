@@ -81,6 +81,9 @@ pub struct BackEndStats {
     pub accepted: usize,
     /// Verified and rejected.
     pub rejected: usize,
+    /// Keyframes that released their points as redundant (see
+    /// [`config::KeyframeConfig::redundant_within`]).
+    pub released: usize,
 }
 
 /// Steps 7–9 over a growing set of keyframes. See the module docs.
@@ -88,6 +91,8 @@ pub struct BackEndStats {
 pub struct BackEnd {
     config: BackEndConfig,
     keyframes: Vec<Keyframe>,
+    /// Per keyframe: it still holds its points (see [`Self::release_if_redundant`]).
+    held: Vec<bool>,
     descriptors: Vec<ScanContext>,
     /// Odometry path length at each keyframe, m.
     path: Vec<f64>,
@@ -112,6 +117,7 @@ impl BackEnd {
         Self {
             config: config.clone(),
             keyframes: Vec::new(),
+            held: Vec::new(),
             descriptors: Vec::new(),
             path: Vec::new(),
             graph: PoseGraph::default(),
@@ -160,9 +166,21 @@ impl BackEnd {
 
     /// Adds a keyframe: its descriptor, a node and an odometry edge, the candidate search, the
     /// verification of the best candidates and, when one is accepted, a loop edge and an
-    /// optimisation, after which [`Self::correction`] jumps. `on_stage` is called as each stage
-    /// ends (for timing). The same keyframes in the same order give bit-identical results.
+    /// optimisation, after which [`Self::correction`] jumps; then, if it is redundant, the
+    /// keyframe releases its points. `on_stage` is called as each stage ends (for timing). The
+    /// same keyframes in the same order give bit-identical results.
     pub fn add_keyframe(
+        &mut self,
+        keyframe: Keyframe,
+        on_stage: impl FnMut(BackEndStage),
+    ) -> KeyframeOutcome {
+        let outcome = self.close_loops(keyframe, on_stage);
+        self.release_if_redundant(outcome.index);
+        outcome
+    }
+
+    /// [`Self::add_keyframe`] up to the release of redundant points.
+    fn close_loops(
         &mut self,
         keyframe: Keyframe,
         mut on_stage: impl FnMut(BackEndStage),
@@ -196,6 +214,7 @@ impl BackEnd {
         };
         self.path.push(path);
         self.keyframes.push(keyframe);
+        self.held.push(true);
         self.descriptors.push(descriptor);
         self.stats.keyframes += 1;
         on_stage(BackEndStage::Descriptor);
@@ -217,7 +236,8 @@ impl BackEnd {
             &self.descriptors[..index],
             |j| {
                 let travelled = path - self.path[j];
-                travelled >= sc.exclude_recent_distance
+                self.held[j]
+                    && travelled >= sc.exclude_recent_distance
                     && (self.graph.poses[j].translation.vector - here).norm()
                         <= sc.search_radius + sc.search_drift_fraction * travelled
             },
@@ -281,6 +301,34 @@ impl BackEnd {
             verifications,
             accepted,
             optimization,
+        }
+    }
+
+    /// Releases the points of keyframe `index` (the newest, processed) if an earlier keyframe
+    /// that holds its own lies within [`config::KeyframeConfig::redundant_within`] at the graph's
+    /// current poses, farther back along the path than the loop search looks (the keyframes
+    /// just behind are always this close). The earlier one is kept rather than the newer: it
+    /// is the one loops have already tied into the graph, and it keeps the place's loop
+    /// candidates and submaps where later passes will look for them.
+    fn release_if_redundant(&mut self, index: usize) {
+        let within = self.config.keyframes.redundant_within;
+        if within <= 0.0 {
+            return;
+        }
+        let here = self.graph.poses[index].translation.vector;
+        let recent = self.config.scan_context.exclude_recent_distance;
+        let redundant = (0..index).any(|j| {
+            self.held[j]
+                && self.path[index] - self.path[j] >= recent
+                && (self.graph.poses[j].translation.vector - here).norm() <= within
+        });
+        if redundant {
+            let keyframe = &mut self.keyframes[index];
+            keyframe.edges = Vec::new();
+            keyframe.planes = Vec::new();
+            keyframe.cloud = Vec::new();
+            self.held[index] = false;
+            self.stats.released += 1;
         }
     }
 
@@ -379,5 +427,65 @@ mod tests {
         let out = backend.trajectory(&[sweep]);
         assert_eq!(out[0].time_ns, sweep.time_ns);
         assert!((out[0].pose.translation.vector - sweep.pose.translation.vector).norm() < 1e-12);
+    }
+
+    /// Out along x to 30 m and back, keyframes 1 m apart, the way back offset by 0.4 m.
+    fn out_and_back(config: &BackEndConfig) -> BackEnd {
+        let mut backend = BackEnd::new(config);
+        let cloud = vec![
+            keyframe::CloudPoint {
+                position: [1.0, 2.0, 0.5],
+                eta: 40.0,
+            };
+            3
+        ];
+        let places = (0..=30)
+            .map(|k| (k as f64, 0.0))
+            .chain((0..30).map(|i| (29.6 - i as f64, std::f64::consts::PI)));
+        for (k, (x, yaw)) in places.enumerate() {
+            let frame = Keyframe {
+                time_ns: 1_000_000_000 * (k as u64 + 1),
+                odom_pose: Isometry3::new(Vector3::new(x, 0.0, 0.0), Vector3::z() * yaw),
+                edges: vec![[1.0, 0.0, 0.0]],
+                planes: vec![[0.0, 1.0, 0.0]],
+                cloud: cloud.clone(),
+            };
+            backend.add_keyframe(frame, |_| {});
+        }
+        backend
+    }
+
+    #[test]
+    fn a_second_pass_releases_its_keyframes_points() {
+        let backend = out_and_back(&BackEndConfig::default());
+        // On the way back, the keyframe at x is 60 − x m along the path, and the outbound one at
+        // ⌊x⌋, 0.6 m away, at ⌊x⌋ m: redundant once they are 15 m apart along it (the loop
+        // search's recent stretch), from 22.6 on: 22.6, 21.6, … 0.6.
+        assert_eq!(backend.stats().released, 23);
+        let kept = |k: &Keyframe| !k.cloud.is_empty() && !k.edges.is_empty();
+        let frames = backend.keyframes();
+        assert!(
+            frames[..31].iter().all(kept),
+            "the first pass keeps its points"
+        );
+        for (k, frame) in frames.iter().enumerate().skip(31) {
+            let released = frame.odom_pose.translation.x < 23.0;
+            assert_eq!(kept(frame), !released, "keyframe {k}");
+            assert_eq!(backend.held[k], !released);
+        }
+        // Every keyframe is still a node on the odometry chain.
+        assert_eq!(backend.graph().poses.len(), 61);
+        assert_eq!(backend.graph().edges.len(), 60);
+
+        let keep_all = BackEndConfig {
+            keyframes: config::KeyframeConfig {
+                redundant_within: 0.0,
+                ..config::KeyframeConfig::default()
+            },
+            ..BackEndConfig::default()
+        };
+        let all = out_and_back(&keep_all);
+        assert_eq!(all.stats().released, 0);
+        assert!(all.keyframes().iter().all(kept));
     }
 }
