@@ -81,12 +81,18 @@ pub struct Alignment {
     /// about the sensor's position and a translation δt of it, both along the world (map) axes,
     /// rad and m, the error of `pose` being `exp(δθ)` about the sensor then `δt`. It describes
     /// one sweep's pose against the local map, not the drift accumulated over the run: the
-    /// inverse of the residuals' information, each counted as independent with the noise of a
-    /// plane seen head-on ([`SolverConfig::plane_noise`]; the weights scale the others to it),
-    /// plus the errors no count of residuals averages away ([`SolverConfig::angular_noise`] on
-    /// each rotation, [`SolverConfig::motion_noise`] on each translation). A direction the step
-    /// leaves at the prediction (see [`SolverConfig::hold_information`]) gets [`HELD_SIGMA`]²
-    /// instead, displacement at the returns' RMS range.
+    /// inverse of the plane and intensity residuals' information, each counted as independent
+    /// with the noise of a plane seen head-on ([`SolverConfig::plane_noise`]; the weights scale
+    /// the others to it), plus the errors no count of residuals averages away
+    /// ([`SolverConfig::angular_noise`] on each rotation, [`SolverConfig::motion_noise`] on each
+    /// translation). A direction with less information than
+    /// [`SolverConfig::hold_information`] gets [`HELD_SIGMA`]² instead, displacement at the
+    /// returns' RMS range, and so does the direction a degenerate sweep's planes leave free
+    /// unless the intensity residuals measure it (as much as `degeneracy_threshold` asks of
+    /// planes). Edge lines are left out, as from the degeneracy measure: fitted through a few map
+    /// points their direction is poorly known. In a corridor without intensity, edges and the
+    /// planes' slight information along the axis made it look measured (σ 15–17 mm) while the
+    /// pose moved 8–9 times that from sweep to sweep.
     pub covariance: Matrix6<f64>,
 }
 
@@ -320,7 +326,8 @@ pub fn align_with(
     } else {
         0.0
     };
-    let covariance = pose_covariance(&system, &pose, config);
+    let weak_translation = (degeneracy < config.degeneracy_threshold).then_some(weakest);
+    let covariance = pose_covariance(&system, &pose, &models, weak_translation, config);
     Alignment {
         pose,
         edges,
@@ -337,12 +344,36 @@ pub fn align_with(
     }
 }
 
-/// [`Alignment::covariance`] from the system at the final pose: the inverse of its information
-/// in the balanced frame, where the held directions are the same as the step's (see
-/// [`damped_step`]), then back to rad for the rotations.
-fn pose_covariance(system: &System, pose: &Isometry3<f64>, config: &SolverConfig) -> Matrix6<f64> {
+/// [`Alignment::covariance`] from the system at the final pose, whose `models` it was built
+/// with: the inverse of its information without the edges' in the balanced frame, with the
+/// step's rule for what is held (see [`damped_step`]), then back to rad for the rotations.
+fn pose_covariance(
+    system: &System,
+    pose: &Isometry3<f64>,
+    models: &[Model],
+    weak_translation: Option<Vector3<f64>>,
+    config: &SolverConfig,
+) -> Matrix6<f64> {
+    let (mut edges, mut planes) = (RowSums::default(), RowSums::default());
+    for m in models {
+        let q = (pose * Point3::from(m.point)).coords;
+        match m.shape {
+            Shape::Line(d) => {
+                let projection = line_projection(m, &d);
+                let (w, _) = huber((projection * (q - m.center)).norm(), config.huber_geometric);
+                for row in &line_rows(&q, &projection) {
+                    edges.add(w, row, 0.0);
+                }
+            }
+            Shape::Plane(n) => {
+                let (row, e) = plane_row(m, &n, &q);
+                planes.add(huber(e.abs(), config.huber_geometric).0, &row, 0.0);
+            }
+        }
+    }
+    let (edges, planes) = (edges.normal_equations().0, planes.normal_equations().0);
     let frame = Balanced::new(system, pose);
-    let eigen = SymmetricEigen::new(frame.hessian(system));
+    let eigen = SymmetricEigen::new(frame.information(&(system.hessian - edges)));
     let largest = eigen.eigenvalues.max().max(1e-12);
     let held = (largest * NULL_INFORMATION).max(config.hold_information);
     // The balanced information is per geometric correspondence: times their count, it is the
@@ -364,10 +395,22 @@ fn pose_covariance(system: &System, pose: &Isometry3<f64>, config: &SolverConfig
     let rotation = 1.0 / frame.rms_range;
     let scale = Matrix6::from_diagonal(&Vector6::new(rotation, rotation, rotation, 1.0, 1.0, 1.0));
     let (angular, motion) = (config.angular_noise.powi(2), config.motion_noise.powi(2));
-    scale * balanced * scale
+    let mut covariance = scale * balanced * scale
         + Matrix6::from_diagonal(&Vector6::new(
             angular, angular, angular, motion, motion, motion,
-        ))
+        ));
+    // Along a direction the planes leave free (the sweep is degenerate), whatever information
+    // they show is their fits' small biases: only the intensity residuals can measure it. If
+    // theirs is below the same threshold, the direction is not measured at all.
+    if let Some(w) = weak_translation {
+        let intensity = system.hessian - edges - planes;
+        let along = w.dot(&(intensity.fixed_view::<3, 3>(3, 3) * w)) * frame.per_correspondence;
+        if along < config.degeneracy_threshold {
+            let mut block = covariance.fixed_view_mut::<3, 3>(3, 3);
+            block += w * w.transpose() * (HELD_SIGMA * HELD_SIGMA);
+        }
+    }
+    covariance
 }
 
 /// The Levenberg–Marquardt step in the eigenbasis of the balanced normal equations (see
@@ -432,10 +475,12 @@ impl Balanced {
     }
 
     fn hessian(&self, system: &System) -> Matrix6<f64> {
-        self.to_perturbation.transpose()
-            * system.hessian
-            * self.to_perturbation
-            * self.per_correspondence
+        self.information(&system.hessian)
+    }
+
+    /// `hessian` (origin-centred perturbation) in this frame.
+    fn information(&self, hessian: &Matrix6<f64>) -> Matrix6<f64> {
+        self.to_perturbation.transpose() * hessian * self.to_perturbation * self.per_correspondence
     }
 
     fn gradient(&self, system: &System) -> Vector6<f64> {
@@ -734,27 +779,19 @@ fn build(
         let q = (pose * Point3::from(m.point)).coords;
         match m.shape {
             Shape::Plane(n) => {
-                let scale = m.weight.sqrt();
-                let e = scale * n.dot(&(q - m.center));
+                let (row, e) = plane_row(m, &n, &q);
                 let (w, cost) = huber(e.abs(), config.huber_geometric);
-                // ∂q/∂δ = [−[q]×, I], so ∂e/∂δ = nᵀ·[−[q]×, I] = [(q × n)ᵀ, nᵀ].
-                let arm = scale * q.cross(&n);
-                let n = scale * n;
-                rows.add(w, &[arm.x, arm.y, arm.z, n.x, n.y, n.z], e);
+                rows.add(w, &row, e);
                 s.cost += cost;
                 s.squared_ranges += m.point.norm_squared();
                 s.planes += 1;
             }
             Shape::Line(d) => {
-                let projection = m.weight.sqrt() * (Matrix3::identity() - d * d.transpose());
+                let projection = line_projection(m, &d);
                 let e = projection * (q - m.center);
                 let (w, cost) = huber(e.norm(), config.huber_geometric);
-                // ∂q/∂δ = [−[q]×, I]; ∂e/∂δ = P·[−[q]×, I], one row per axis of the residual.
-                // Row i of P·[−[q]×, I] is [(q × Pᵢ)ᵀ, Pᵢᵀ] (P symmetric).
-                for i in 0..3 {
-                    let row = projection.column(i).into_owned();
-                    let arm = q.cross(&row);
-                    rows.add(w, &[arm.x, arm.y, arm.z, row.x, row.y, row.z], e[i]);
+                for (i, row) in line_rows(&q, &projection).iter().enumerate() {
+                    rows.add(w, row, e[i]);
                 }
                 s.cost += cost;
             }
@@ -798,6 +835,31 @@ fn build(
     }
     (s.hessian, s.gradient) = rows.normal_equations();
     s
+}
+
+/// A plane residual at `q` and its Jacobian's row, both scaled by the residual's weight:
+/// ∂q/∂δ = [−[q]×, I], so ∂e/∂δ = nᵀ·[−[q]×, I] = [(q × n)ᵀ, nᵀ].
+fn plane_row(m: &Model, n: &Vector3<f64>, q: &Vector3<f64>) -> ([f64; 6], f64) {
+    let scale = m.weight.sqrt();
+    let e = scale * n.dot(&(q - m.center));
+    let arm = scale * q.cross(n);
+    let n = scale * n;
+    ([arm.x, arm.y, arm.z, n.x, n.y, n.z], e)
+}
+
+/// A line residual's projection: onto the line's normal space, scaled by the residual's weight.
+fn line_projection(m: &Model, d: &Vector3<f64>) -> Matrix3<f64> {
+    m.weight.sqrt() * (Matrix3::identity() - d * d.transpose())
+}
+
+/// The rows of a line residual's Jacobian at `q`: ∂q/∂δ = [−[q]×, I], so ∂e/∂δ = P·[−[q]×, I],
+/// one row per axis of the residual, and row i is [(q × Pᵢ)ᵀ, Pᵢᵀ] (P symmetric).
+fn line_rows(q: &Vector3<f64>, projection: &Matrix3<f64>) -> [[f64; 6]; 3] {
+    std::array::from_fn(|i| {
+        let row = projection.column(i).into_owned();
+        let arm = q.cross(&row);
+        [arm.x, arm.y, arm.z, row.x, row.y, row.z]
+    })
 }
 
 /// Σ w·j·jᵀ and Σ w·e·j over the residual rows j. The matrix is symmetric, so only its upper

@@ -185,9 +185,10 @@ pub struct Pose {
     /// Pose covariance, 6×6 row-major over `[x, y, z, roll, pitch, yaw]` (m², rad², m·rad), the
     /// same convention as ROS `PoseWithCovariance`, rotations about the axes of `frame`. Never
     /// NaN. `glintd` publishes the sweep's registration covariance (how well it pins the pose
-    /// against the local map, not the drift since the start); a direction held at the prediction
-    /// reads (1 m)² (a rotation: 1 m of displacement at the returns' RMS range). A diagonal-only
-    /// estimate (zeros off the diagonal) is allowed.
+    /// against the local map, not the drift since the start); a direction nothing measured (held
+    /// at the prediction, or a degenerate sweep's free axis without intensity) reads (1 m)² (a
+    /// rotation: 1 m of displacement at the returns' RMS range). A diagonal-only estimate (zeros
+    /// off the diagonal) is allowed.
     pub covariance: [f64; 36],
     /// Match quality in `0..=1` (1 = every feature matched within tolerance).
     pub quality: f32,
