@@ -8,10 +8,11 @@
 Simulates a warehouse run of --short and of --long seconds (same seed), replays each through
 `glintd replay CAPTURE --trajectory OUT.tum --no-publish --no-loop` (the odometry; with
 --slam, the full SLAM, whose graph grows with the path: a node per keyframe, while a keyframe
-that revisits a place releases its points) (add --map to also build the whole run's map) and reads each replay's peak resident set size from the kernel: wait4()'s
-ru_maxrss for that child alone (and /proc/PID/status VmHWM, sampled while it runs, as a
-cross-check). Prints both peaks and their ratio, and exits 1 if long / short > 1.5 (the floor
-of issue 5: memory stays flat on an endless run).
+that revisits a place releases its points) (add --map to also build the whole run's map) and
+reads each replay's peak resident set size from the kernel: wait4()'s ru_maxrss for that child
+alone (and /proc/PID/status VmHWM, sampled while it runs, as a cross-check). Prints both peaks
+and their ratio, and exits 1 if long / short > 1.5 (the floor of issue 5: memory stays flat on
+an endless run).
 
 The 10-minute replay takes several minutes (6,000 sweeps at Glint's current speed, longer on a
 loaded machine); the simulated captures go to target/memory-bench/ (~90 MB per simulated

@@ -7,10 +7,9 @@ use glint_ipc::{Domain, Frame, Pose, PosePublisher, Status, StatusFlags};
 use nalgebra::{Isometry3, Matrix6, Vector6};
 
 /// 1σ of a position (m) and an angle (rad) for a pose without an alignment's covariance (the
-/// first sweep, a lost sweep's prediction), inflated a hundredfold there: not a measurement.
-const NOMINAL_POSITION_SIGMA: f64 = 0.02;
-const NOMINAL_ANGLE_SIGMA: f64 = 0.002;
-const UNMEASURED_INFLATION: f64 = 100.0;
+/// first sweep, a lost sweep's prediction): large, so no consumer fuses it as a measurement.
+const UNMEASURED_POSITION_SIGMA: f64 = 2.0;
+const UNMEASURED_ANGLE_SIGMA: f64 = 0.2;
 
 /// One pose of the base, ready to publish.
 #[derive(Debug, Clone, Copy)]
@@ -137,10 +136,10 @@ fn to_wire(sample: &PoseSample, sequence: u64, frame: Frame) -> Pose {
         None => {
             for i in 0..6 {
                 let sigma = if i < 3 {
-                    NOMINAL_POSITION_SIGMA
+                    UNMEASURED_POSITION_SIGMA
                 } else {
-                    NOMINAL_ANGLE_SIGMA
-                } * UNMEASURED_INFLATION;
+                    UNMEASURED_ANGLE_SIGMA
+                };
                 pose.covariance[i * 6 + i] = sigma * sigma;
             }
         }
