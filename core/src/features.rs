@@ -179,7 +179,15 @@ impl FeatureSelector {
             self.ring_eta
                 .extend(members.iter().map(|&m| image.eta[m as usize]));
             let ring_eta = &self.ring_eta;
+            // Σ positions over the window [w − k, w + k], slid along the ring: in f64, so the
+            // additions and removals along a ring of 1800 returns leave no drift at f32's scale.
+            let wide = |v: &Vector3<f32>| v.cast::<f64>();
+            let mut window: Vector3<f64> = positions[..2 * k].iter().map(wide).sum();
             for w in k..members.len() - k {
+                window += wide(&positions[w + k]);
+                if w > k {
+                    window -= wide(&positions[w - k - 1]);
+                }
                 let i = members[w] as usize;
                 if !usable(i) {
                     continue;
@@ -191,15 +199,14 @@ impl FeatureSelector {
                     continue;
                 }
                 // Σⱼ(pⱼ − pᵢ) over the 2k neighbours.
-                let window = positions[w - k..=w + k].iter().sum::<Vector3<f32>>();
-                let sum = window - p * (2 * k + 1) as f32;
+                let sum = (window - wide(&p) * (2 * k + 1) as f64).cast::<f32>();
                 let ei = ring_eta[w];
                 let mut eta_diff = 0f32;
                 let mut eta_count = 0;
                 if ei.is_finite() {
                     // Branch-free over the whole window: the return itself adds |ei − ei| = 0
                     // and one to the count, taken back after.
-                    for &ej in &ring_eta[w - k..=w + k] {
+                    for &ej in &ring_eta[w - k..w + k + 1] {
                         let known = ej.is_finite();
                         eta_diff += if known { (ej - ei).abs() } else { 0.0 };
                         eta_count += usize::from(known);

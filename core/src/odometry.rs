@@ -102,6 +102,8 @@ pub struct Odometry {
     correspondences: Correspondences,
     sweeps: u64,
     known_poses: bool,
+    /// The pose of the last sweep that grew the maps.
+    mapped_at: Option<Isometry3<f64>>,
 }
 
 /// Sweeps between evictions of map cells far from the robot.
@@ -127,6 +129,7 @@ impl Odometry {
             correspondences: Correspondences::default(),
             sweeps: 0,
             known_poses: false,
+            mapped_at: None,
         }
     }
 
@@ -380,7 +383,19 @@ impl Odometry {
     }
 
     /// Adds the sweep's features, placed at `pose`, to the maps.
+    /// Adds the sweep at `pose` to the maps if it was taken far enough from the last sweep that
+    /// was (see [`crate::config::LocalMapConfig::update_distance`]); always while they are empty.
     fn grow_maps(&mut self, features: &SweepFeatures, pose: &Isometry3<f64>) {
+        let config = &self.config.local_map;
+        if let Some(mapped) = self.mapped_at.filter(|_| !self.planes.is_empty()) {
+            let moved = mapped.inverse() * pose;
+            if moved.translation.vector.norm() < config.update_distance
+                && moved.rotation.angle() < config.update_angle
+            {
+                return;
+            }
+        }
+        self.mapped_at = Some(*pose);
         for p in &self.input.edges {
             self.edges.insert((pose * Point3::from(*p)).coords.cast());
         }
@@ -578,23 +593,71 @@ mod tests {
         }
     }
 
+    /// The range along `ray` inside a 12 × 8 × 4 m box room, the sensor 1 m above its floor.
+    fn room(ray: &Vector3<f32>) -> Option<f32> {
+        let t = |d: f32, c: f32| (c.abs() > 1e-6 && d / c > 0.0).then_some(d / c);
+        [
+            t(6.0, ray.x),
+            t(-6.0, ray.x),
+            t(4.0, ray.y),
+            t(-4.0, ray.y),
+            t(-1.0, ray.z),
+            t(3.0, ray.z),
+        ]
+        .into_iter()
+        .flatten()
+        .min_by(f32::total_cmp)
+    }
+
+    #[test]
+    fn a_parked_sensor_does_not_map_what_moves_around_it() {
+        // The room, and from the fourth sweep on a crate (a slab 1 m deep, 2 m wide, 1.5 m
+        // tall) 2.5 m ahead: something moving past a robot that stands still.
+        let with_crate = |ray: &Vector3<f32>| {
+            let wall = room(ray)?;
+            let hit = (ray.x > 1e-6).then(|| 2.5 / ray.x).filter(|&r| {
+                let q = ray * r;
+                q.y.abs() < 1.0 && q.z < 0.5 && r < wall
+            });
+            Some(hit.unwrap_or(wall))
+        };
+        let run = |update_distance: f64| {
+            let mut config = OdometryConfig::default();
+            config.local_map.update_distance = update_distance;
+            config.local_map.update_angle = if update_distance > 0.0 { 0.02 } else { 0.0 };
+            let mut front_end = FrontEnd::new(&config);
+            let mut odometry = Odometry::new(&config);
+            let mut features = SweepFeatures::default();
+            let mut sizes = Vec::new();
+            for k in 1..=6u64 {
+                let end_ns = 1_000_000_000 + k * 100_000_000;
+                let points = if k < 4 {
+                    synthetic_sweep(end_ns, room)
+                } else {
+                    synthetic_sweep(end_ns, with_crate)
+                };
+                let scan = Scan {
+                    points: &points,
+                    rings: 16,
+                    reference_ns: end_ns,
+                };
+                front_end.process(&scan, &mut features);
+                let e = odometry.register(&features, |_| {});
+                assert_ne!(e.status, TrackingStatus::Lost, "{e:?}");
+                sizes.push(odometry.map_sizes());
+            }
+            sizes
+        };
+        let gated = run(0.1);
+        assert!(gated.iter().all(|s| *s == gated[0]), "{gated:?}");
+        // Without the gate the crate's faces enter the maps: the test would notice.
+        let ungated = run(0.0);
+        assert!(ungated[5].1 > ungated[2].1, "{ungated:?}");
+    }
+
     #[test]
     fn an_empty_sweep_after_tracking_is_lost_and_holds_the_prediction() {
         // A room, then nothing: the sensor is blinded.
-        let room = |ray: &Vector3<f32>| {
-            let t = |d: f32, c: f32| (c.abs() > 1e-6 && d / c > 0.0).then_some(d / c);
-            [
-                t(6.0, ray.x),
-                t(-6.0, ray.x),
-                t(4.0, ray.y),
-                t(-4.0, ray.y),
-                t(-1.0, ray.z),
-                t(3.0, ray.z),
-            ]
-            .into_iter()
-            .flatten()
-            .min_by(f32::total_cmp)
-        };
         let config = OdometryConfig::default();
         let mut front_end = FrontEnd::new(&config);
         let mut odometry = Odometry::new(&config);
