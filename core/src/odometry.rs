@@ -557,23 +557,41 @@ mod tests {
         points
     }
 
+    /// A front end and an odometry, fed one VLP-16 sweep at a time.
+    struct Rig {
+        front_end: FrontEnd,
+        odometry: Odometry,
+        features: SweepFeatures,
+    }
+
+    impl Rig {
+        fn new(config: &OdometryConfig) -> Self {
+            Self {
+                front_end: FrontEnd::new(config),
+                odometry: Odometry::new(config),
+                features: SweepFeatures::default(),
+            }
+        }
+
+        fn feed(&mut self, points: &[ScanPoint], end_ns: u64) -> OdometryEstimate {
+            let scan = Scan {
+                points,
+                rings: 16,
+                reference_ns: end_ns,
+            };
+            self.front_end.process(&scan, &mut self.features);
+            self.odometry.register(&self.features, |_| {})
+        }
+    }
+
     /// Runs `sweeps` copies of a static scene through the front end and the odometry.
     fn track(sweeps: usize, range: impl Fn(&Vector3<f32>) -> Option<f32>) -> Vec<OdometryEstimate> {
-        let config = OdometryConfig::default();
-        let mut front_end = FrontEnd::new(&config);
-        let mut odometry = Odometry::new(&config);
-        let mut features = SweepFeatures::default();
+        let mut rig = Rig::new(&OdometryConfig::default());
         (1..=sweeps as u64)
             .map(|k| {
                 let end_ns = 1_000_000_000 + k * 100_000_000;
                 let points = synthetic_sweep(end_ns, &range);
-                let scan = Scan {
-                    points: &points,
-                    rings: 16,
-                    reference_ns: end_ns,
-                };
-                front_end.process(&scan, &mut features);
-                odometry.register(&features, |_| {})
+                rig.feed(&points, end_ns)
             })
             .collect()
     }
@@ -625,9 +643,7 @@ mod tests {
             let mut config = OdometryConfig::default();
             config.local_map.update_distance = update_distance;
             config.local_map.update_angle = if update_distance > 0.0 { 0.02 } else { 0.0 };
-            let mut front_end = FrontEnd::new(&config);
-            let mut odometry = Odometry::new(&config);
-            let mut features = SweepFeatures::default();
+            let mut rig = Rig::new(&config);
             let mut sizes = Vec::new();
             for k in 1..=6u64 {
                 let end_ns = 1_000_000_000 + k * 100_000_000;
@@ -636,15 +652,9 @@ mod tests {
                 } else {
                     synthetic_sweep(end_ns, with_crate)
                 };
-                let scan = Scan {
-                    points: &points,
-                    rings: 16,
-                    reference_ns: end_ns,
-                };
-                front_end.process(&scan, &mut features);
-                let e = odometry.register(&features, |_| {});
+                let e = rig.feed(&points, end_ns);
                 assert_ne!(e.status, TrackingStatus::Lost, "{e:?}");
-                sizes.push(odometry.map_sizes());
+                sizes.push(rig.odometry.map_sizes());
             }
             sizes
         };
@@ -659,9 +669,7 @@ mod tests {
     fn an_empty_sweep_after_tracking_is_lost_and_holds_the_prediction() {
         // A room, then nothing: the sensor is blinded.
         let config = OdometryConfig::default();
-        let mut front_end = FrontEnd::new(&config);
-        let mut odometry = Odometry::new(&config);
-        let mut features = SweepFeatures::default();
+        let mut rig = Rig::new(&config);
         let mut estimates: Vec<OdometryEstimate> = Vec::new();
         for k in 1..=6u64 {
             let end_ns = 1_000_000_000 + k * 100_000_000;
@@ -670,13 +678,7 @@ mod tests {
             } else {
                 Vec::new()
             };
-            let scan = Scan {
-                points: &points,
-                rings: 16,
-                reference_ns: end_ns,
-            };
-            front_end.process(&scan, &mut features);
-            let e = odometry.register(&features, |_| {});
+            let e = rig.feed(&points, end_ns);
             if k < 5 {
                 assert_ne!(e.status, TrackingStatus::Lost, "{e:?}");
             } else {
