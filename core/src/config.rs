@@ -230,7 +230,11 @@ pub struct SolverConfig {
     /// of the fitted lines and planes: over a bare floor, inside a sphere of equal ranges, along
     /// a corridor without intensity.
     pub hold_information: f64,
-    /// Stop when an update moves less than this (rad and m).
+    /// Stop when an update moves less than this (rad and m). 1 mrad and 1 mm are half the
+    /// sweep's own angular noise and a fifth of its translational one (`angular_noise`,
+    /// `motion_noise`); at 1e-4 a fifth of the yard's evaluations of the normal equations were
+    /// steps of a millimetre rejected for a cost 1e-5 higher. Measured over nine runs (three
+    /// scenarios, 60 and 160 s): 28 % fewer evaluations, drift 0.285 → 0.285 %.
     pub convergence: f64,
     /// Stop when a step changes the cost by less than this fraction of it, up or down: the fit
     /// is at the resolution of its own model (Huber corners, trilinear intensity cells), where
@@ -275,7 +279,7 @@ impl Default for SolverConfig {
             intensity_weight: 0.003,
             huber_intensity: 0.1,
             hold_information: 0.002,
-            convergence: 1e-4,
+            convergence: 1e-3,
             cost_tolerance: 1e-4,
             reassociation_distance: 0.1,
             min_correspondences: 30,

@@ -215,6 +215,8 @@ pub fn align_with(
     let mut planes = 0;
     // The system at `pose` with the latest models.
     let mut last = None;
+    // Whether the last round's Levenberg–Marquardt converged.
+    let mut settled = false;
     for _ in 0..config.outer_iterations.max(1) {
         let round_start = pose;
         let line = |_: &_, values: &_, vectors: &_, _: &_| line_model(config, values, vectors);
@@ -235,6 +237,11 @@ pub fn align_with(
             &mut neighbours,
             plane,
         );
+        // Same correspondences, same system, and the solver had converged on it: another
+        // round would only repeat the last one's final, negligible step.
+        if updated == 0 && settled {
+            break;
+        }
         let mut converged = false;
         // `last` is the system at `pose` with the models in hand: unless a point was
         // re-associated, this round's would be the same, bit for bit.
@@ -267,6 +274,12 @@ pub fn align_with(
                     largest.max(1e-12) * NULL_INFORMATION,
                     config.hold_information,
                 ));
+                // A step this small ends the round, taken or not: the pose it would give is
+                // within the tolerance of this one, so its evaluation is saved.
+                if step.norm() < config.convergence {
+                    converged = true;
+                    break;
+                }
                 let candidate = exp(&step) * pose;
                 let trial = build(
                     &candidate,
@@ -300,6 +313,7 @@ pub fn align_with(
                 break;
             }
         }
+        settled = converged;
         // Another round only if this one moved the pose: new correspondences could differ.
         if crate::se3::log(&(round_start.inverse() * pose)).norm() < config.convergence {
             break;
@@ -1157,24 +1171,32 @@ mod tests {
         assert!(without >= 0.5 * HELD_SIGMA * HELD_SIGMA, "{}", g.covariance);
         // Trilinear cells make the cost piecewise smooth: near the minimum a step can raise it
         // by a hair however it is damped. Stopping there (`cost_tolerance`) instead of retrying
-        // saves trials and gives the same pose.
-        let retrying = SolverConfig {
-            cost_tolerance: 0.0,
+        // saves trials and gives the same pose (compared with no step tolerance, which would
+        // end both first).
+        let stopping = SolverConfig {
+            convergence: 0.0,
             ..SolverConfig::default()
         };
+        let retrying = SolverConfig {
+            cost_tolerance: 0.0,
+            ..stopping.clone()
+        };
+        let s = align(&Isometry3::identity(), &input, maps, &stopping);
         let r = align(&Isometry3::identity(), &input, maps, &retrying);
         assert!(
-            a.iterations < r.iterations,
+            s.iterations < r.iterations,
             "{} trials stopping, {} retrying",
-            a.iterations,
+            s.iterations,
             r.iterations
         );
-        assert!(
-            (a.pose.translation.vector - r.pose.translation.vector).norm() < 0.005,
-            "{} against {}",
-            a.pose.translation.vector,
-            r.pose.translation.vector
-        );
+        for stopped in [&a, &s] {
+            assert!(
+                (stopped.pose.translation.vector - r.pose.translation.vector).norm() < 0.005,
+                "{} against {}",
+                stopped.pose.translation.vector,
+                r.pose.translation.vector
+            );
+        }
     }
 }
 
