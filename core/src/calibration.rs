@@ -114,6 +114,7 @@ fn atan2(y: f32, x: f32) -> f32 {
 
 /// Columns of the range image: 0.2°, the VLP-16's horizontal step at 600 rpm.
 pub const COLUMNS: usize = 1800;
+const COLUMNS_PER_RAD: f32 = COLUMNS as f32 / std::f32::consts::TAU;
 const EMPTY: u32 = u32::MAX;
 
 /// A sweep arranged by ring and azimuth column, with each return's calibrated reflectivity.
@@ -194,8 +195,7 @@ impl RangeImage {
                 a if a < 0.0 => a + std::f32::consts::TAU,
                 a => a,
             };
-            let column =
-                ((azimuth / std::f32::consts::TAU * COLUMNS as f32) as usize).min(COLUMNS - 1);
+            let column = ((azimuth * COLUMNS_PER_RAD) as usize).min(COLUMNS - 1);
             self.range[i] = range;
             self.azimuth[i] = azimuth;
             self.column[i] = column as u16;

@@ -64,8 +64,8 @@ pub struct FeatureSelector {
     edge_candidates: Vec<(f32, u32)>,
     /// Per ring, the position of the last return handed to the intensity map.
     last_kept: Vec<[f32; 3]>,
-    /// One ring's calibrated values, in ring order.
-    ring_eta: Vec<f32>,
+    /// One ring's calibrated values, in ring order, as [η or 0, 1 if η is known else 0].
+    ring_eta: Vec<[f32; 2]>,
 }
 
 impl FeatureSelector {
@@ -176,8 +176,14 @@ impl FeatureSelector {
             }
             // The ring's calibrated values side by side, for the windows below.
             self.ring_eta.clear();
-            self.ring_eta
-                .extend(members.iter().map(|&m| image.eta[m as usize]));
+            self.ring_eta.extend(members.iter().map(|&m| {
+                let eta = image.eta[m as usize];
+                if eta.is_finite() {
+                    [eta, 1.0]
+                } else {
+                    [0.0, 0.0]
+                }
+            }));
             let ring_eta = &self.ring_eta;
             // Σ positions over the window [w − k, w + k], slid along the ring: in f64, so the
             // additions and removals along a ring of 1800 returns leave no drift at f32's scale.
@@ -200,22 +206,21 @@ impl FeatureSelector {
                 }
                 // Σⱼ(pⱼ − pᵢ) over the 2k neighbours.
                 let sum = (window - wide(&p) * (2 * k + 1) as f64).cast::<f32>();
-                let ei = ring_eta[w];
+                let [ei, known] = ring_eta[w];
                 let mut eta_diff = 0f32;
-                let mut eta_count = 0;
-                if ei.is_finite() {
-                    // Branch-free over the whole window: the return itself adds |ei − ei| = 0
-                    // and one to the count, taken back after.
-                    for &ej in &ring_eta[w - k..w + k + 1] {
-                        let known = ej.is_finite();
-                        eta_diff += if known { (ej - ei).abs() } else { 0.0 };
-                        eta_count += usize::from(known);
+                let mut eta_count = 0f32;
+                if known > 0.0 {
+                    // Branch-free over the whole window: an unknown η adds 0 to both sums; the
+                    // return itself adds |ei − ei| = 0 and one to the count, taken back after.
+                    for &[ej, known] in &ring_eta[w - k..w + k + 1] {
+                        eta_diff += known * (ej - ei).abs();
+                        eta_count += known;
                     }
-                    eta_count -= 1;
+                    eta_count -= 1.0;
                 }
                 let geometric = sum.norm() / ((2 * k) as f32 * image.range[i]);
-                let intensity = if eta_count > 0 {
-                    eta_diff / (eta_count as f32 * 100.0)
+                let intensity = if eta_count > 0.0 {
+                    eta_diff / (eta_count * 100.0)
                 } else {
                     0.0
                 };
