@@ -195,7 +195,8 @@ impl RangeImage {
                 a if a < 0.0 => a + std::f32::consts::TAU,
                 a => a,
             };
-            let column = ((azimuth * COLUMNS_PER_RAD) as usize).min(COLUMNS - 1);
+            // Through i32: a float's conversion to usize costs several times more.
+            let column = ((azimuth * COLUMNS_PER_RAD) as i32).clamp(0, COLUMNS as i32 - 1) as usize;
             self.range[i] = range;
             self.azimuth[i] = azimuth;
             self.column[i] = column as u16;
@@ -249,7 +250,8 @@ impl RangeImage {
     }
 
     /// The typical azimuth step between successive returns of a ring, rad (the median over
-    /// the sweep; 0.2° for a VLP-16 at 600 rpm). `None` for a sweep too sparse to tell.
+    /// every eighth pair of the sweep's; 0.2° for a VLP-16 at 600 rpm). `None` for a sweep too
+    /// sparse to tell.
     pub fn azimuth_step(&self) -> Option<f32> {
         self.step
     }
@@ -257,7 +259,8 @@ impl RangeImage {
     fn measure_azimuth_step(&mut self) -> Option<f32> {
         self.steps.clear();
         for members in &self.ring_points {
-            for w in members.windows(2) {
+            // Thousands of samples still, for an eighth of the ranking's cost.
+            for w in members.windows(2).step_by(8) {
                 let d = (self.azimuth[w[1] as usize] - self.azimuth[w[0] as usize]).abs();
                 let d = d.min(std::f32::consts::TAU - d);
                 if d > 0.0 {

@@ -138,6 +138,7 @@ impl FeatureSelector {
         let noise = |r: f32| noise_at_1m / r.max(0.1);
         let edge_threshold = config.edge_threshold * step_ratio.clamp(0.5, 4.0);
         let plane_threshold = config.plane_threshold * step_ratio.clamp(0.5, 4.0);
+        let per_voxel = 1.0 / config.plane_voxel;
         for (members, positions) in image.ring_points.iter().zip(&image.ring_positions) {
             if members.len() < 2 * k + 1 {
                 continue;
@@ -284,11 +285,10 @@ impl FeatureSelector {
                         // return that looks flattest is partly one whose noise happened to
                         // cancel.
                         let p = positions[w as usize];
-                        let s = config.plane_voxel;
                         let key = (
-                            (p.x / s).floor() as i32,
-                            (p.y / s).floor() as i32,
-                            (p.z / s).floor() as i32,
+                            (p.x * per_voxel).floor() as i32,
+                            (p.y * per_voxel).floor() as i32,
+                            (p.z * per_voxel).floor() as i32,
                         );
                         // Successive returns of a ring mostly share a voxel: its plane's index
                         // is kept from one to the next instead of hashed again.

@@ -135,9 +135,9 @@ impl IntensityMap {
 
     fn key(&self, p: &Vector3<f32>) -> [i32; 3] {
         [
-            (p.x / self.voxel).floor() as i32,
-            (p.y / self.voxel).floor() as i32,
-            (p.z / self.voxel).floor() as i32,
+            (p.x * (1.0 / self.voxel)).floor() as i32,
+            (p.y * (1.0 / self.voxel)).floor() as i32,
+            (p.z * (1.0 / self.voxel)).floor() as i32,
         ]
     }
 

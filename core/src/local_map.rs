@@ -62,9 +62,9 @@ impl LocalMap {
 
     fn key(&self, p: &Vector3<f32>) -> [i32; 3] {
         [
-            (p.x / self.cell).floor() as i32,
-            (p.y / self.cell).floor() as i32,
-            (p.z / self.cell).floor() as i32,
+            (p.x * (1.0 / self.cell)).floor() as i32,
+            (p.y * (1.0 / self.cell)).floor() as i32,
+            (p.z * (1.0 / self.cell)).floor() as i32,
         ]
     }
 
