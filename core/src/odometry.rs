@@ -382,7 +382,6 @@ impl Odometry {
         }
     }
 
-    /// Adds the sweep's features, placed at `pose`, to the maps.
     /// Adds the sweep at `pose` to the maps if it was taken far enough from the last sweep that
     /// was (see [`crate::config::LocalMapConfig::update_distance`]); always while they are empty.
     fn grow_maps(&mut self, features: &SweepFeatures, pose: &Isometry3<f64>) {
