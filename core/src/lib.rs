@@ -19,3 +19,6 @@ pub mod scan;
 pub mod se3;
 pub mod solver;
 pub mod world_map;
+
+#[cfg(test)]
+mod test_random;

@@ -261,13 +261,8 @@ mod tests {
 
     #[test]
     fn pruned_search_equals_brute_force() {
-        let mut seed = 11u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 40) as f32 / (1u64 << 24) as f32
-        };
+        let mut centred = crate::test_random::centred(11);
+        let mut next = || (centred() + 0.5) as f32;
         let mut m = LocalMap::new(&LocalMapConfig {
             min_spacing: 0.0,
             ..config()

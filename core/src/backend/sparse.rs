@@ -178,13 +178,7 @@ mod tests {
         let n = 7;
         let mut pairs: Vec<(usize, usize)> = (0..n).map(|i| (i, (i + 1) % n)).collect();
         pairs.extend([(0, 3), (2, 5)]);
-        let mut seed = 11u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = crate::test_random::centred(11);
         let mut dense = DMatrix::<f64>::zeros(6 * n, 6 * n);
         let symbolic = Symbolic::analyse(n, pairs.iter().copied());
         let mut m = symbolic.matrix();
