@@ -195,7 +195,7 @@ impl RangeImage {
                 a if a < 0.0 => a + std::f32::consts::TAU,
                 a => a,
             };
-            // Through i32: a float's conversion to usize costs several times more.
+            // Through i32: converting a float to usize takes a longer instruction sequence.
             let column = ((azimuth * COLUMNS_PER_RAD) as i32).clamp(0, COLUMNS as i32 - 1) as usize;
             self.range[i] = range;
             self.azimuth[i] = azimuth;

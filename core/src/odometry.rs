@@ -631,8 +631,8 @@ mod tests {
 
     #[test]
     fn a_parked_sensor_does_not_map_what_moves_around_it() {
-        // The room, and from the fourth sweep on a crate (a slab 1 m deep, 2 m wide, 1.5 m
-        // tall) 2.5 m ahead: something moving past a robot that stands still.
+        // The room, and from the fourth sweep on the face of a crate (2 m wide, 1.5 m tall)
+        // 2.5 m ahead: something moving past a robot that stands still.
         let with_crate = |ray: &Vector3<f32>| {
             let wall = room(ray)?;
             let hit = (ray.x > 1e-6).then(|| 2.5 / ray.x).filter(|&r| {
@@ -662,7 +662,7 @@ mod tests {
         };
         let gated = run(0.1);
         assert!(gated.iter().all(|s| *s == gated[0]), "{gated:?}");
-        // Without the gate the crate's faces enter the maps: the test would notice.
+        // Without the gate the crate's face enters the maps: the test would notice.
         let ungated = run(0.0);
         assert!(ungated[5].1 > ungated[2].1, "{ungated:?}");
     }
