@@ -641,10 +641,7 @@ mod tests {
             });
             Some(hit.unwrap_or(wall))
         };
-        let run = |update_distance: f64| {
-            let mut config = OdometryConfig::default();
-            config.local_map.update_distance = update_distance;
-            config.local_map.update_angle = if update_distance > 0.0 { 0.02 } else { 0.0 };
+        let run = |config: OdometryConfig| {
             let mut rig = Rig::new(&config);
             let mut sizes = Vec::new();
             for k in 1..=6u64 {
@@ -660,10 +657,13 @@ mod tests {
             }
             sizes
         };
-        let gated = run(0.1);
+        let gated = run(OdometryConfig::default());
         assert!(gated.iter().all(|s| *s == gated[0]), "{gated:?}");
         // Without the gate the crate's face enters the maps: the test would notice.
-        let ungated = run(0.0);
+        let mut ungated = OdometryConfig::default();
+        ungated.local_map.update_distance = 0.0;
+        ungated.local_map.update_angle = 0.0;
+        let ungated = run(ungated);
         assert!(ungated[5].1 > ungated[2].1, "{ungated:?}");
     }
 
