@@ -220,7 +220,6 @@ impl BackEnd {
         on_stage(BackEndStage::Descriptor);
 
         let sc = &self.config.scan_context;
-        let here = self.graph.poses[index].translation.vector;
         if index < self.next_search {
             on_stage(BackEndStage::Search);
             return KeyframeOutcome {
@@ -235,11 +234,9 @@ impl BackEnd {
             &self.descriptors[index],
             &self.descriptors[..index],
             |j| {
-                let travelled = path - self.path[j];
-                self.held[j]
-                    && travelled >= sc.exclude_recent_distance
-                    && (self.graph.poses[j].translation.vector - here).norm()
-                        <= sc.search_radius + sc.search_drift_fraction * travelled
+                self.earlier_place(index, j, |travelled| {
+                    sc.search_radius + sc.search_drift_fraction * travelled
+                })
             },
             sc,
         );
@@ -304,6 +301,18 @@ impl BackEnd {
         }
     }
 
+    /// Whether keyframe `j` is an earlier visit of keyframe `index`'s place: it holds its points,
+    /// lies farther back along the path than the loop search's recent stretch, and within
+    /// `radius(path travelled since)` of it at the graph's current poses.
+    fn earlier_place(&self, index: usize, j: usize, radius: impl Fn(f64) -> f64) -> bool {
+        let travelled = self.path[index] - self.path[j];
+        self.held[j]
+            && travelled >= self.config.scan_context.exclude_recent_distance
+            && (self.graph.poses[j].translation.vector - self.graph.poses[index].translation.vector)
+                .norm()
+                <= radius(travelled)
+    }
+
     /// Releases the points of keyframe `index` (the newest, processed) if an earlier keyframe
     /// that holds its own lies within [`config::KeyframeConfig::redundant_within`] at the graph's
     /// current poses, farther back along the path than the loop search looks (the keyframes
@@ -315,14 +324,7 @@ impl BackEnd {
         if within <= 0.0 {
             return;
         }
-        let here = self.graph.poses[index].translation.vector;
-        let recent = self.config.scan_context.exclude_recent_distance;
-        let redundant = (0..index).any(|j| {
-            self.held[j]
-                && self.path[index] - self.path[j] >= recent
-                && (self.graph.poses[j].translation.vector - here).norm() <= within
-        });
-        if redundant {
+        if (0..index).any(|j| self.earlier_place(index, j, |_| within)) {
             let keyframe = &mut self.keyframes[index];
             keyframe.edges = Vec::new();
             keyframe.planes = Vec::new();
