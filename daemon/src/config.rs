@@ -245,6 +245,30 @@ impl DaemonConfig {
                 self.pipeline.queue_sweeps
             );
         }
+        let f = &self.backend.floor;
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        for (key, value) in [
+            ("radius", f.radius),
+            ("min_spread", f.min_spread),
+            ("max_rms", f.max_rms),
+            ("search_band", f.search_band),
+            ("max_tilt", f.max_tilt),
+            ("sigma_height", f.sigma_height),
+            ("sigma_tilt", f.sigma_tilt),
+        ] {
+            if !positive(value) {
+                bail!("backend.floor.{key} = {value}: must be a finite number > 0");
+            }
+        }
+        if !(f.min_clearance.is_finite() && f.min_clearance >= 0.0) {
+            bail!(
+                "backend.floor.min_clearance = {}: must be a finite number >= 0",
+                f.min_clearance
+            );
+        }
+        if f.optimize_every == 0 {
+            bail!("backend.floor.optimize_every = 0: must be at least 1");
+        }
         let m = &self.mounting;
         if m.translation
             .iter()
@@ -352,6 +376,10 @@ mod tests {
                 "odometry.local_map.radius",
             ),
             ("[sensor]\ndata_port = 70000\n", "data_port"),
+            (
+                "[backend.floor]\nsigma_tilt = 0.0\n",
+                "backend.floor.sigma_tilt",
+            ),
         ] {
             let e = format!("{:#}", DaemonConfig::parse(text).unwrap_err());
             assert!(e.contains(key), "{text}: {e}");

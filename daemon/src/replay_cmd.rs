@@ -199,16 +199,17 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     if let Some(slam) = &summary.slam {
         let st = &slam.stats;
         say!(
-            "back end: {} keyframes; loops found {}, verified {}, accepted {}, rejected {}; {} keyframes released their points as redundant",
+            "back end: {} keyframes; loops found {}, verified {}, accepted {}, rejected {}; {} keyframes released their points as redundant; {} tied to the floor",
             st.keyframes,
             st.loops_found,
             st.verified,
             st.accepted,
             st.rejected,
-            st.released
+            st.released,
+            st.on_floor
         );
         say!(
-            "  per keyframe: descriptor median {:.2} ms, candidate search median {:.2} ms (p99 {:.2}); verification median {:.1} ms per candidate ({}); optimisation median {:.1} ms per loop ({})",
+            "  per keyframe: descriptor median {:.2} ms, candidate search median {:.2} ms (p99 {:.2}); verification median {:.1} ms per candidate ({}); optimisation median {:.1} ms ({}, after loops and floor edges)",
             slam.descriptor_ms.quantile(0.5),
             slam.search_ms.quantile(0.5),
             slam.search_ms.quantile(0.99),

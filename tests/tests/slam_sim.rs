@@ -118,12 +118,11 @@ fn false_loops(r: &Run) -> usize {
 struct LoopFigures {
     odometry_ate: f64,
     slam_ate: f64,
-    odometry_return: f64,
-    slam_return: f64,
 }
 
 /// Prints the figures and checks what every closed loop must show: a loop accepted and none
-/// false.
+/// false, the return to the start within 0.1 m, and SLAM's ATE at most half the odometry's or
+/// 5 cm.
 fn check_closed_loop(name: &str, r: &Run) -> LoopFigures {
     let odometry = ate_rmse(&associate(&r.odometry, &r.groundtruth)).expect("poses");
     let slam = ate_rmse(&associate(&r.slam, &r.groundtruth)).expect("poses");
@@ -139,11 +138,19 @@ fn check_closed_loop(name: &str, r: &Run) -> LoopFigures {
         r.stats
     );
     assert_eq!(false_loops(r), 0, "{name}: {:?}", r.loop_errors);
+    assert!(
+        back_slam < 0.10,
+        "{name}: return to start: SLAM {back_slam} m, odometry {back_odometry} m"
+    );
+    assert!(
+        slam.rmse <= (0.5 * odometry.rmse).max(0.05),
+        "{name}: SLAM ATE {} vs odometry {}",
+        slam.rmse,
+        odometry.rmse
+    );
     LoopFigures {
         odometry_ate: odometry.rmse,
         slam_ate: slam.rmse,
-        odometry_return: back_odometry,
-        slam_return: back_slam,
     }
 }
 
@@ -157,33 +164,24 @@ fn warehouse_two_laps_close_the_loop() {
         seconds,
         &BackEndConfig::default(),
     );
-    let f = check_closed_loop("warehouse seed 31", &r);
-    assert!(f.slam_return < 0.10, "return to start {} m", f.slam_return);
-    assert!(
-        f.slam_ate <= (0.5 * f.odometry_ate).max(0.05),
-        "SLAM ATE {} vs odometry {}",
-        f.slam_ate,
-        f.odometry_ate
-    );
+    check_closed_loop("warehouse seed 31", &r);
 }
 
 #[test]
 fn yard_loop_closes() {
+    // The odometry's error on this seed is mostly height, mid-lap (a tilt of a few mrad held
+    // over tens of metres), which loops at the end of the lap cannot see: the floor edges
+    // remove it (SLAM's ATE 0.078 m without them, 0.038 m with; odometry 0.076 m).
     let seed = 8;
     let seconds = lap_seconds(Scenario::Yard, seed) + 8.0;
     let r = run(Scenario::Yard, seed, seconds, &BackEndConfig::default());
-    // The ATE bar (SLAM ≤ max(½ odometry, 5 cm)) is not met on this seed and not
-    // asserted (0.081 m odometry, 0.086 m SLAM; seeds 2 and 11 meet it over 160 s): the
-    // odometry's error here is height, mid-lap, and loops at the end of the lap fix its end.
-    // What is asserted is the return to the start: 0.040 m off by odometry alone,
-    // 0.007 m with SLAM.
     let f = check_closed_loop("yard seed 8", &r);
     assert!(
-        f.slam_return < 0.10,
-        "return to start: SLAM {} m, odometry {} m",
-        f.slam_return,
-        f.odometry_return
+        r.stats.on_floor * 10 >= r.stats.keyframes * 9,
+        "{:?}",
+        r.stats
     );
+    assert!(f.slam_ate < f.odometry_ate, "SLAM {} m", f.slam_ate);
 }
 
 #[test]

@@ -214,6 +214,61 @@ impl Default for GraphConfig {
     }
 }
 
+/// Step 9: every keyframe that sees the floor is tied to the one floor plane of the run (see
+/// [`super::floor`]). For sites with one flat floor, as a warehouse's; switch it off where
+/// the robot drives ramps between levels or across a slope.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FloorConfig {
+    /// Tie keyframes to the floor.
+    pub enabled: bool,
+    /// Returns within this horizontal distance of the sensor are fitted, m: close enough that
+    /// a tilt error of a few mrad moves them by less than the range noise.
+    pub radius: f64,
+    /// Fewest returns in the fit (a keyframe keeps one per 0.3 m voxel).
+    pub min_points: usize,
+    /// Smallest spread of the fitted returns across their main direction, m (square root of
+    /// the second covariance eigenvalue): returns along one line leave the tilt about it free.
+    pub min_spread: f64,
+    /// Largest RMS distance of the returns from the fitted floor, m.
+    pub max_rms: f64,
+    /// Returns within this of the floor the graph expects are fitted, and the fit may be this
+    /// far from it, m.
+    pub search_band: f64,
+    /// The fit's normal may be this far from the one the graph expects, rad (3°): a ramp or
+    /// a truck's bed is not the floor.
+    pub max_tilt: f64,
+    /// The first floor of a run is the most populated layer at least this far below the
+    /// sensor, m.
+    pub min_clearance: f64,
+    /// 1σ error of a keyframe's measured height above the floor, m: the VLP-16's ±3 cm range
+    /// accuracy, averaged over the fit but not its calibration's bias.
+    pub sigma_height: f64,
+    /// 1σ error of a keyframe's measured tilt, rad: 3 mrad lifts the floor 10 m away by 3 cm.
+    pub sigma_tilt: f64,
+    /// The graph is optimised after this many floor edges (and after every accepted loop), so
+    /// the map pose follows the floor in small steps.
+    pub optimize_every: usize,
+}
+
+impl Default for FloorConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            radius: 12.0,
+            min_points: 50,
+            min_spread: 0.5,
+            max_rms: 0.03,
+            search_band: 0.3,
+            max_tilt: 3f64.to_radians(),
+            min_clearance: 0.3,
+            sigma_height: 0.02,
+            sigma_tilt: 0.003,
+            optimize_every: 10,
+        }
+    }
+}
+
 /// The whole back end.
 #[derive(Debug, Clone, PartialEq, Default, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -226,4 +281,6 @@ pub struct BackEndConfig {
     pub verification: VerificationConfig,
     /// Step 9.
     pub graph: GraphConfig,
+    /// Step 9: the floor as a landmark.
+    pub floor: FloorConfig,
 }

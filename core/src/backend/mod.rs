@@ -9,6 +9,7 @@
 //! jumps once when a loop is accepted, while the odom pose never does.
 
 pub mod config;
+pub mod floor;
 pub mod g2o;
 pub mod keyframe;
 pub mod loop_closure;
@@ -16,10 +17,11 @@ pub mod pose_graph;
 pub mod scan_context;
 mod sparse;
 
-use nalgebra::{Isometry3, Matrix6, Vector6};
+use nalgebra::{Isometry3, Matrix6, Vector3, Vector6};
 
 use crate::trajectory::StampedPose;
 use config::BackEndConfig;
+use floor::Plane;
 use keyframe::Keyframe;
 use loop_closure::{search, verify, Candidate, Placed, Verification};
 use pose_graph::{Edge, OptimizationReport, PoseGraph};
@@ -84,6 +86,8 @@ pub struct BackEndStats {
     /// Keyframes that released their points as redundant (see
     /// [`config::KeyframeConfig::redundant_within`]).
     pub released: usize,
+    /// Keyframes tied to the floor (see [`floor`]).
+    pub on_floor: usize,
 }
 
 /// Steps 7–9 over a growing set of keyframes. See the module docs.
@@ -102,6 +106,10 @@ pub struct BackEnd {
     stats: BackEndStats,
     /// The first keyframe index allowed to search (cool-down).
     next_search: usize,
+    /// The run's floor in the map frame, once a keyframe has seen it.
+    floor: Option<Plane>,
+    /// Floor edges added since the last optimisation.
+    floor_edges_pending: usize,
 }
 
 fn information(sigma_translation: f64, sigma_rotation: f64) -> Matrix6<f64> {
@@ -125,6 +133,8 @@ impl BackEnd {
             loops: Vec::new(),
             stats: BackEndStats::default(),
             next_search: 0,
+            floor: None,
+            floor_edges_pending: 0,
         }
     }
 
@@ -133,8 +143,8 @@ impl BackEnd {
         &self.config
     }
 
-    /// `map ← odom`: a map pose is `correction() * odom pose`. Changes only when a loop is
-    /// accepted.
+    /// `map ← odom`: a map pose is `correction() * odom pose`. Changes only when the graph is
+    /// optimised: after an accepted loop, and in small steps as keyframes are tied to the floor.
     pub fn correction(&self) -> Isometry3<f64> {
         self.correction
     }
@@ -164,10 +174,11 @@ impl BackEnd {
         &self.graph
     }
 
-    /// Adds a keyframe: its descriptor, a node and an odometry edge, the candidate search, the
-    /// verification of the best candidates and, when one is accepted, a loop edge and an
-    /// optimisation, after which [`Self::correction`] jumps; then, if it is redundant, the
-    /// keyframe releases its points. `on_stage` is called as each stage ends (for timing). The
+    /// Adds a keyframe: its descriptor, a node, an odometry edge and, if it sees the floor, a
+    /// floor edge; the candidate search, the verification of the best candidates and, when one
+    /// is accepted, a loop edge and an optimisation, after which [`Self::correction`] jumps (the
+    /// graph is also optimised after every `floor.optimize_every` floor edges); then, if it is
+    /// redundant, the keyframe releases its points. `on_stage` is called as each stage ends (for timing). The
     /// same keyframes in the same order give bit-identical results.
     pub fn add_keyframe(
         &mut self,
@@ -217,17 +228,19 @@ impl BackEnd {
         self.held.push(true);
         self.descriptors.push(descriptor);
         self.stats.keyframes += 1;
+        self.tie_to_floor(index);
         on_stage(BackEndStage::Descriptor);
 
         let sc = &self.config.scan_context;
         if index < self.next_search {
             on_stage(BackEndStage::Search);
+            let optimization = self.optimize_if_due(index, false, &mut on_stage);
             return KeyframeOutcome {
                 index,
                 candidates: Vec::new(),
                 verifications: Vec::new(),
                 accepted: None,
-                optimization: None,
+                optimization,
             };
         }
         let candidates = search(
@@ -274,7 +287,6 @@ impl BackEnd {
             self.next_search = index + 1 + sc.cooldown_after_reject;
         }
 
-        let mut optimization = None;
         if let Some(closure) = &accepted {
             let g = &self.config.graph;
             self.graph.edges.push(Edge {
@@ -284,14 +296,9 @@ impl BackEnd {
                 information: information(g.loop_sigma_translation, g.loop_sigma_rotation),
                 robust: true,
             });
-            // The graph is valid by construction (indices from our own counts, finite poses).
-            if let Ok(report) = self.graph.optimize(&g.optimizer) {
-                optimization = Some(report);
-            }
-            self.correction = self.graph.poses[index] * self.keyframes[index].odom_pose.inverse();
             self.loops.push(closure.clone());
-            on_stage(BackEndStage::Optimize);
         }
+        let optimization = self.optimize_if_due(index, accepted.is_some(), &mut on_stage);
         KeyframeOutcome {
             index,
             candidates,
@@ -299,6 +306,72 @@ impl BackEnd {
             accepted,
             optimization,
         }
+    }
+
+    /// Measures the floor in keyframe `index` and, if it is the run's floor, ties the keyframe's
+    /// node to it with an edge from the fixed first node. The first floor seen defines the
+    /// run's: later ones are searched for where the graph expects it.
+    fn tie_to_floor(&mut self, index: usize) {
+        let config = &self.config.floor;
+        if !config.enabled {
+            return;
+        }
+        let pose = self.graph.poses[index];
+        let expected = self.floor.map(|f| f.transformed(&pose.inverse()));
+        let keyframe = &self.keyframes[index];
+        let points = keyframe
+            .planes
+            .iter()
+            .map(|p| Vector3::from(*p).cast::<f64>());
+        let Some(seen) = floor::measure(points, expected.as_ref(), config) else {
+            return;
+        };
+        let world = *self
+            .floor
+            .get_or_insert_with(|| seen.plane.transformed(&pose));
+        self.stats.on_floor += 1;
+        if index > 0 {
+            let edge = seen.edge(&world, 0, &self.graph.poses[0], index, &pose, config);
+            self.graph.edges.push(edge);
+            self.floor_edges_pending += 1;
+        }
+    }
+
+    /// Optimises the graph if a loop was just closed or enough floor edges wait, and moves
+    /// [`Self::correction`] to the newest keyframe's optimised pose.
+    fn optimize_if_due(
+        &mut self,
+        index: usize,
+        loop_closed: bool,
+        on_stage: &mut impl FnMut(BackEndStage),
+    ) -> Option<OptimizationReport> {
+        let due = loop_closed
+            || (self.floor_edges_pending > 0
+                && self.floor_edges_pending >= self.config.floor.optimize_every);
+        if !due {
+            return None;
+        }
+        let report = self.optimize(index);
+        on_stage(BackEndStage::Optimize);
+        report
+    }
+
+    /// Optimises the graph and moves [`Self::correction`] to keyframe `index`'s new pose.
+    fn optimize(&mut self, index: usize) -> Option<OptimizationReport> {
+        self.floor_edges_pending = 0;
+        // The graph is valid by construction (indices from our own counts, finite poses).
+        let report = self.graph.optimize(&self.config.graph.optimizer).ok();
+        self.correction = self.graph.poses[index] * self.keyframes[index].odom_pose.inverse();
+        report
+    }
+
+    /// At the end of a run: optimises the graph once more if floor edges added since the last
+    /// optimisation wait, so [`Self::trajectory`] has them all.
+    pub fn finish(&mut self) -> Option<OptimizationReport> {
+        if self.floor_edges_pending == 0 || self.keyframes.is_empty() {
+            return None;
+        }
+        self.optimize(self.keyframes.len() - 1)
     }
 
     /// Whether keyframe `j` is an earlier visit of keyframe `index`'s place: it holds its points,
@@ -429,6 +502,49 @@ mod tests {
         let out = backend.trajectory(&[sweep]);
         assert_eq!(out[0].time_ns, sweep.time_ns);
         assert!((out[0].pose.translation.vector - sweep.pose.translation.vector).norm() < 1e-12);
+    }
+
+    #[test]
+    fn keyframes_that_see_the_floor_keep_the_map_level() {
+        // Driving along x, 0.8 m above a level floor; the odometry pitches up by 2 mrad per
+        // metre, so after 44 m it believes it climbed 1.9 m.
+        let mut backend = BackEnd::new(&BackEndConfig::default());
+        let floor: Vec<[f32; 3]> = (-20..=20)
+            .flat_map(|i| (-20..=20).map(move |j| [0.5 * i as f32, 0.5 * j as f32, -0.8]))
+            .collect();
+        let mut odom = Isometry3::translation(0.0, 0.0, 0.8);
+        let mut optimisations = 0;
+        for k in 0..45 {
+            if k > 0 {
+                odom *= Isometry3::new(Vector3::x(), Vector3::y() * -0.002);
+            }
+            let frame = Keyframe {
+                time_ns: 1_000_000_000 * (k as u64 + 1),
+                odom_pose: odom,
+                edges: Vec::new(),
+                planes: floor.clone(),
+                cloud: Vec::new(),
+            };
+            let outcome = backend.add_keyframe(frame, |_| {});
+            optimisations += usize::from(outcome.optimization.is_some());
+        }
+        assert!(
+            backend.finish().is_some(),
+            "edges since the last optimisation"
+        );
+        assert_eq!(optimisations, 4, "every 10 floor edges");
+        assert_eq!(backend.stats().on_floor, 45);
+        let last = odom.translation.z;
+        assert!(last > 1.5, "the odometry climbed to {last} m");
+        for (k, pose) in backend.keyframe_poses().iter().enumerate() {
+            let height = pose.translation.z;
+            let tilt = (pose.rotation * Vector3::z()).angle(&Vector3::z());
+            assert!((height - 0.8).abs() < 0.02, "keyframe {k}: {height} m");
+            assert!(tilt < 0.003, "keyframe {k}: {tilt} rad");
+        }
+        // The map pose follows: the correction brings the newest keyframe down to the floor.
+        let corrected = backend.correction() * odom;
+        assert!((corrected.translation.z - 0.8).abs() < 0.02);
     }
 
     /// Out along x to 30 m and back, keyframes 1 m apart, the way back offset by 0.4 m.
