@@ -6,7 +6,8 @@
 //! Frames: the odometry publishes sensor → `odom` poses, smooth and drifting. The back end
 //! keeps every keyframe's sensor → `map` pose in the graph and exposes the correction
 //! `map ← odom` of the newest keyframe, so a published map pose is `correction · odom pose`: it
-//! jumps once when a loop is accepted, while the odom pose never does.
+//! jumps once when a loop is accepted (and in small steps as keyframes are tied
+//! to the floor), while the odom pose never does.
 
 pub mod config;
 pub mod floor;
@@ -178,8 +179,8 @@ impl BackEnd {
     /// floor edge; the candidate search, the verification of the best candidates and, when one
     /// is accepted, a loop edge and an optimisation, after which [`Self::correction`] jumps (the
     /// graph is also optimised after every `floor.optimize_every` floor edges); then, if it is
-    /// redundant, the keyframe releases its points. `on_stage` is called as each stage ends (for timing). The
-    /// same keyframes in the same order give bit-identical results.
+    /// redundant, the keyframe releases its points. `on_stage` is called as each stage ends
+    /// (for timing). The same keyframes in the same order give bit-identical results.
     pub fn add_keyframe(
         &mut self,
         keyframe: Keyframe,
