@@ -86,20 +86,22 @@ fn lapped_graph() -> PoseGraph {
         let r = Vector3::new(noise(0.002), noise(0.002), noise(0.002));
         Isometry3::new(t, r)
     };
-    let information = Matrix6::from_diagonal_element(1e4);
+    // Odometry (from the previous keyframe) and loop (robust) edges.
+    let mut measured = |from: usize, to: usize, robust: bool| Edge {
+        from,
+        to,
+        measurement: pose_at(from).inverse() * pose_at(to) * jitter(),
+        information: Matrix6::from_diagonal_element(1e4),
+        robust,
+    };
     let mut graph = PoseGraph::default();
     for k in 0..10_000 {
         graph.add_node(pose_at(k), k == 0);
         if k > 0 {
-            graph.edges.push(Edge {
-                from: k - 1,
-                to: k,
-                measurement: pose_at(k - 1).inverse() * pose_at(k) * jitter(),
-                information,
-                robust: false,
-            });
+            graph.edges.push(measured(k - 1, k, false));
             let seen = FloorMeasurement {
-                plane: level.transformed(&(pose_at(k) * jitter()).inverse()),
+                plane: level
+                    .transformed(&(pose_at(k) * measured(k, k, false).measurement).inverse()),
                 points: 300,
                 rms: 0.01,
             };
@@ -108,13 +110,7 @@ fn lapped_graph() -> PoseGraph {
                 .push(seen.edge(&level, 0, &pose_at(0), k, &pose_at(k), &floor));
         }
         if k >= 160 && k % 160 == 0 {
-            graph.edges.push(Edge {
-                from: k - 160,
-                to: k,
-                measurement: pose_at(k - 160).inverse() * pose_at(k) * jitter(),
-                information,
-                robust: true,
-            });
+            graph.edges.push(measured(k - 160, k, true));
         }
     }
     // The graph as the last optimisation left it, then the newest keyframes as odometry
