@@ -50,10 +50,15 @@ pub struct SweepFeatures {
 #[derive(Debug, Default, Clone)]
 pub struct FeatureSelector {
     roughness: Vec<(f32, f32, u32)>,
-    /// Returns LOAM's rules reject (occlusion boundaries, surfaces seen edge-on).
+    /// Per place along the current ring: LOAM's rules reject it (occlusion boundaries,
+    /// surfaces seen edge-on).
     unreliable: Vec<bool>,
-    /// Returns next to a chosen edge.
+    /// Per place along the current ring: next to a chosen edge.
     suppressed: Vec<bool>,
+    /// Per place along the current ring: the return's range, m.
+    ring_range: Vec<f32>,
+    /// Per place along the current ring: valid and within the feature range limits.
+    ring_usable: Vec<bool>,
     /// Plane voxel → its entry in the sweep's planes.
     voxels: FxHashMap<(i32, i32, i32), usize>,
     /// Per plane of the sweep: its return's σᴳ.
@@ -92,11 +97,6 @@ impl FeatureSelector {
         self.plane_roughness.clear();
         let mut last_voxel = None;
         self.candidates.clear();
-        let n = scan.points.len();
-        for flags in [&mut self.unreliable, &mut self.suppressed] {
-            flags.clear();
-            flags.resize(n, false);
-        }
         let feature = |i: usize| {
             let p = &scan.points[i];
             let dt = (p.time_ns as f64 - scan.reference_ns as f64) * 1e-9;
@@ -144,65 +144,75 @@ impl FeatureSelector {
                 continue;
             }
             self.roughness.clear();
+            // The ring's values side by side, read from the sweep's per-point arrays once: a
+            // ring is every sixteenth return, so each of the passes below would otherwise load
+            // every cache line of those arrays again.
+            let len = members.len();
+            self.ring_range.clear();
+            self.ring_usable.clear();
+            self.ring_eta.clear();
+            for &m in members {
+                let m = m as usize;
+                let eta = image.eta[m];
+                self.ring_range.push(image.range[m]);
+                self.ring_usable.push(usable(m));
+                self.ring_eta.push(if eta.is_finite() {
+                    [eta, 1.0]
+                } else {
+                    [0.0, 0.0]
+                });
+            }
+            for flags in [&mut self.unreliable, &mut self.suppressed] {
+                flags.clear();
+                flags.resize(len, false);
+            }
+            let ring_range = &self.ring_range;
             // Rejection rules (LOAM): a depth jump to a neighbour makes the returns on the far
             // side unreliable (they may be occluded next sweep); a return much nearer or farther
             // than both neighbours lies on a surface seen edge-on.
-            for w in 1..members.len() {
-                let (a, b) = (members[w - 1] as usize, members[w] as usize);
-                let (ra, rb) = (image.range[a], image.range[b]);
+            for w in 1..len {
+                let (ra, rb) = (ring_range[w - 1], ring_range[w]);
                 let gap = (positions[w - 1] - positions[w]).norm();
                 if gap > 0.1 * ra.min(rb) + 0.1 {
                     let (far_start, step): (usize, isize) =
                         if ra > rb { (w - 1, -1) } else { (w, 1) };
                     for s in 0..k {
                         let idx = far_start as isize + step * s as isize;
-                        if let Some(&m) = usize::try_from(idx).ok().and_then(|x| members.get(x)) {
-                            self.unreliable[m as usize] = true;
+                        if let Some(flag) = usize::try_from(idx)
+                            .ok()
+                            .and_then(|x| self.unreliable.get_mut(x))
+                        {
+                            *flag = true;
                         }
                     }
                 }
             }
-            for w in 1..members.len() - 1 {
-                let (a, b, c) = (
-                    members[w - 1] as usize,
-                    members[w] as usize,
-                    members[w + 1] as usize,
-                );
-                let rb = image.range[b];
-                if (image.range[a] - rb).abs() > 0.02 * rb
-                    && (image.range[c] - rb).abs() > 0.02 * rb
+            for w in 1..len - 1 {
+                let rb = ring_range[w];
+                if (ring_range[w - 1] - rb).abs() > 0.02 * rb
+                    && (ring_range[w + 1] - rb).abs() > 0.02 * rb
                 {
-                    self.unreliable[b] = true;
+                    self.unreliable[w] = true;
                 }
             }
-            // The ring's calibrated values side by side, for the windows below.
-            self.ring_eta.clear();
-            self.ring_eta.extend(members.iter().map(|&m| {
-                let eta = image.eta[m as usize];
-                if eta.is_finite() {
-                    [eta, 1.0]
-                } else {
-                    [0.0, 0.0]
-                }
-            }));
             let ring_eta = &self.ring_eta;
             // Σ positions over the window [w − k, w + k], slid along the ring: in f64, so the
             // additions and removals along a ring of 1800 returns leave no drift at f32's scale.
             let wide = |v: &Vector3<f32>| v.cast::<f64>();
             let mut window: Vector3<f64> = positions[..2 * k].iter().map(wide).sum();
-            for w in k..members.len() - k {
+            for w in k..len - k {
                 window += wide(&positions[w + k]);
                 if w > k {
                     window -= wide(&positions[w - k - 1]);
                 }
-                let i = members[w] as usize;
-                if !usable(i) {
+                if !self.ring_usable[w] {
                     continue;
                 }
+                let range = ring_range[w];
                 let p = positions[w];
                 // The window must be contiguous: no gap wider than a few steps.
                 let span = (positions[w - k] - positions[w + k]).norm();
-                if span > (2 * k) as f32 * 0.02 * image.range[i] + 0.5 {
+                if span > (2 * k) as f32 * 0.02 * range + 0.5 {
                     continue;
                 }
                 // Σⱼ(pⱼ − pᵢ) over the 2k neighbours.
@@ -219,7 +229,7 @@ impl FeatureSelector {
                     }
                     eta_count -= 1.0;
                 }
-                let geometric = sum.norm() / ((2 * k) as f32 * image.range[i]);
+                let geometric = sum.norm() / ((2 * k) as f32 * range);
                 let intensity = if eta_count > 0.0 {
                     eta_diff / (eta_count * 100.0)
                 } else {
@@ -249,8 +259,8 @@ impl FeatureSelector {
                         .iter()
                         .map(|&(g, i, w)| (combined(g, i), w))
                         .filter(|&(sigma, w)| {
-                            let i = members[w as usize] as usize;
-                            sigma > edge_threshold + 3.0 * noise(image.range[i]) && !unreliable[i]
+                            let w = w as usize;
+                            sigma > edge_threshold + 3.0 * noise(ring_range[w]) && !unreliable[w]
                         }),
                 );
                 self.edge_candidates
@@ -261,30 +271,29 @@ impl FeatureSelector {
                         break;
                     }
                     let w = w as usize;
-                    let i = members[w] as usize;
-                    if self.suppressed[i] {
+                    if self.suppressed[w] {
                         continue;
                     }
-                    out.edges.push(feature(i));
+                    out.edges.push(feature(members[w] as usize));
                     edges += 1;
                     // Suppress neighbours so edges spread along the ring.
-                    for j in w.saturating_sub(k)..(w + k + 1).min(members.len()) {
-                        self.suppressed[members[j] as usize] = true;
+                    for flag in &mut self.suppressed[w.saturating_sub(k)..(w + k + 1).min(len)] {
+                        *flag = true;
                     }
                 }
                 for &(g, rough_i, w) in slice {
-                    let i = members[w as usize] as usize;
-                    if self.unreliable[i] {
+                    let (w, i) = (w as usize, members[w as usize] as usize);
+                    if self.unreliable[w] {
                         continue;
                     }
-                    if g < plane_threshold + noise(image.range[i]) && !self.suppressed[i] {
+                    if g < plane_threshold + noise(ring_range[w]) && !self.suppressed[w] {
                         // One plane per voxel: the least flat return that still passes (the
                         // first of the sector's returns ranked roughest first, as selection
                         // always did). Keeping the flattest instead was measured: yard seed 19
                         // went from 0.56 to 1.01 % of drift, seed 7 from 0.69 to 0.65 %; a
                         // return that looks flattest is partly one whose noise happened to
                         // cancel.
-                        let p = positions[w as usize];
+                        let p = positions[w];
                         let key = (
                             (p.x * per_voxel).floor() as i32,
                             (p.y * per_voxel).floor() as i32,
@@ -315,7 +324,7 @@ impl FeatureSelector {
                             }
                         }
                     }
-                    if rough_i > config.intensity_roughness_threshold && image.eta[i].is_finite() {
+                    if rough_i > config.intensity_roughness_threshold && ring_eta[w][1] > 0.0 {
                         self.candidates.push((rough_i, i as u32));
                     }
                 }
