@@ -419,7 +419,7 @@ impl Odometry {
     /// measured. The first sweep had no motion to deskew with: taken by a robot already moving
     /// (a restart while driving, a capture started mid-run), it entered the maps smeared by a
     /// sweep's travel, 0.18 m at 1.8 m/s, and every later sweep matched to that smear kept its
-    /// offset (simulated yards: the return to the start 0.05–0.19 m off by odometry alone).
+    /// offset (160 s simulated yards: the return to the start 0.05–0.22 m off by odometry alone).
     fn restart_maps(&mut self, first: &SweepFeatures, pose: &Isometry3<f64>) {
         (self.edges, self.planes, self.intensity) = empty_maps(&self.config);
         self.mapped_at = None;

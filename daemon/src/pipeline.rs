@@ -803,7 +803,7 @@ fn run_front_end(
         send_beating(output, message, heartbeats, Heartbeats::FRONT_END)
     };
     while let Some(arrival) = recv_beating(input, heartbeats, Heartbeats::FRONT_END) {
-        for a in start.admit(arrival) {
+        for a in start.admit(arrival).into_iter().flatten() {
             if process(a).is_err() {
                 return;
             }
@@ -828,14 +828,14 @@ struct LeadingSweep {
 
 impl LeadingSweep {
     /// The sweeps to process now, in order.
-    fn admit(&mut self, arrival: Arrival) -> Vec<Arrival> {
+    fn admit(&mut self, arrival: Arrival) -> [Option<Arrival>; 2] {
         if self.decided {
-            return vec![arrival];
+            return [Some(arrival), None];
         }
         match (self.held.take(), arrival.sweep.partial) {
             (None, true) => {
                 self.held = Some(arrival);
-                Vec::new()
+                [None, None]
             }
             (Some(first), false) => {
                 self.decided = true;
@@ -846,11 +846,11 @@ impl LeadingSweep {
                 if let Some(r) = &first.recycler {
                     r.recycle(first.sweep);
                 }
-                vec![arrival]
+                [Some(arrival), None]
             }
             (held, _) => {
                 self.decided = true;
-                held.into_iter().chain([arrival]).collect()
+                [held, Some(arrival)]
             }
         }
     }
@@ -1510,11 +1510,16 @@ mod tests {
             recycler: None,
             received: Instant::now(),
         };
-        let indices = |v: Vec<Arrival>| v.iter().map(|a| a.sweep.index).collect::<Vec<_>>();
+        let indices = |v: [Option<Arrival>; 2]| {
+            v.iter()
+                .flatten()
+                .map(|a| a.sweep.index)
+                .collect::<Vec<_>>()
+        };
 
         // A capture started mid-rotation: its sliver is dropped, the rest pass, partial or not.
         let mut start = LeadingSweep::default();
-        assert!(start.admit(arrival(0, true)).is_empty());
+        assert!(indices(start.admit(arrival(0, true))).is_empty());
         assert_eq!(indices(start.admit(arrival(1, false))), [1]);
         assert_eq!(indices(start.admit(arrival(2, false))), [2]);
         assert_eq!(indices(start.admit(arrival(3, true))), [3]);
@@ -1527,10 +1532,10 @@ mod tests {
 
         // Nothing but partial sweeps (a capture of about one rotation): all of them.
         let mut start = LeadingSweep::default();
-        assert!(start.admit(arrival(0, true)).is_empty());
+        assert!(indices(start.admit(arrival(0, true))).is_empty());
         assert_eq!(indices(start.admit(arrival(1, true))), [0, 1]);
         let mut start = LeadingSweep::default();
-        assert!(start.admit(arrival(0, true)).is_empty());
+        assert!(indices(start.admit(arrival(0, true))).is_empty());
         assert_eq!(start.finish().map(|a| a.sweep.index), Some(0));
     }
 
