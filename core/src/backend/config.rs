@@ -232,11 +232,11 @@ pub struct FloorConfig {
     pub min_spread: f64,
     /// Largest RMS distance of the returns from the fitted floor, m.
     pub max_rms: f64,
-    /// Returns within this of the floor the graph expects are fitted, and the fit may be this
-    /// far from it, m.
+    /// The floor is looked for within this of where the graph expects it, and the fit may lie
+    /// this far from it, m; a fit must also hold half the returns from this far above it down.
     pub search_band: f64,
-    /// The fit's normal may be this far from the one the graph expects, rad (3°): a ramp or
-    /// a truck's bed is not the floor.
+    /// The fit's normal may be this far from the one the graph expects (or, for the run's first
+    /// floor, from the sensor's z axis), rad (3°): a ramp is not the floor.
     pub max_tilt: f64,
     /// The first floor of a run is the most populated layer at least this far below the
     /// sensor, m.
