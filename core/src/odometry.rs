@@ -257,7 +257,7 @@ impl Odometry {
         // by the change in velocity over the sweep.
         if interval > 0.0 {
             let (_, previous) = self.last.expect("tracking has a last pose");
-            let velocity = clamp_twist(log(&(previous.inverse() * alignment.pose)) / interval);
+            let velocity = motion(&previous, &alignment.pose, interval);
             if (velocity - self.velocity).norm() * SWEEP_SPAN_S > REDESKEW_THRESHOLD {
                 self.deskew(features, &velocity);
                 let maps = MapView {
@@ -279,7 +279,7 @@ impl Odometry {
                     &mut self.correspondences,
                 );
             }
-            self.velocity = clamp_twist(log(&(previous.inverse() * alignment.pose)) / interval);
+            self.velocity = motion(&previous, &alignment.pose, interval);
             self.deskew(features, &self.velocity.clone());
             if let Some((first, first_pose)) = self.first_sweep.take() {
                 // The motion measured against the smeared map is itself off (1.2 m/s for 1.5
@@ -306,8 +306,7 @@ impl Odometry {
                         &self.config.solver,
                         &mut self.correspondences,
                     );
-                    self.velocity =
-                        clamp_twist(log(&(previous.inverse() * alignment.pose)) / interval);
+                    self.velocity = motion(&previous, &alignment.pose, interval);
                     self.deskew(features, &self.velocity.clone());
                 }
             }
@@ -320,7 +319,7 @@ impl Odometry {
             // have put the sensor; the map and the motion follow the given pose.
             if interval > 0.0 {
                 let (_, previous) = self.last.expect("tracking has a last pose");
-                self.velocity = clamp_twist(log(&(previous.inverse() * prediction)) / interval);
+                self.velocity = motion(&previous, &prediction, interval);
             }
             self.deskew(features, &self.velocity.clone());
             self.grow_maps(features, &prediction);
@@ -490,6 +489,12 @@ const SWEEP_SPAN_S: f64 = 0.1;
 /// 0.286 % for 2 % fewer instructions, never refining 0.295 % (the warehouse's 0.244 → 0.286 %)
 /// for 7 % fewer.
 const REDESKEW_THRESHOLD: f64 = 0.01;
+
+/// The body twist that takes `previous` to `pose` in `interval` s, within the bounds of a
+/// plausible AGV (see [`clamp_twist`]).
+fn motion(previous: &Isometry3<f64>, pose: &Isometry3<f64>, interval: f64) -> Vector6<f64> {
+    clamp_twist(log(&(previous.inverse() * pose)) / interval)
+}
 
 fn clamp_twist(v: Vector6<f64>) -> Vector6<f64> {
     let omega = Vector3::new(v[0], v[1], v[2]);
