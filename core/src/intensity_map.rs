@@ -133,6 +133,52 @@ impl IntensityMap {
         self.cells == 0
     }
 
+    /// Voxel edge, m.
+    pub fn voxel(&self) -> f32 {
+        self.voxel
+    }
+
+    /// The configuration the map was made with (`max_count` at least 1).
+    pub fn config(&self) -> IntensityMapConfig {
+        IntensityMapConfig {
+            voxel: self.voxel,
+            max_count: self.max_count,
+            min_weight: self.min_weight,
+        }
+    }
+
+    /// The observed cells as (cell key, mean, count), the key of a cell being its lower
+    /// corner divided by the voxel edge. The order is the storage's, so a map rebuilt from
+    /// these in this order with [`Self::insert_cell`] lists them in the same order again.
+    pub fn cells(&self) -> impl Iterator<Item = ([i32; 3], f32, u16)> + '_ {
+        self.blocks.iter().flat_map(|(key, block)| {
+            (0..BLOCK_CELLS).filter_map(move |at| {
+                let count = block.count[at];
+                let b = BLOCK as usize;
+                let offset = [at % b, (at / b) % b, at / (b * b)];
+                let cell = std::array::from_fn(|a| key[a] * BLOCK + offset[a] as i32);
+                (count > 0).then_some((cell, block.mean[at], count))
+            })
+        })
+    }
+
+    /// Sets cell `key` to a mean seen `count` times (capped at the map's `max_count`),
+    /// replacing what it held: the inverse of [`Self::cells`]. A count of 0 or a non-finite
+    /// mean leaves the map as it is, since no observation makes one.
+    pub fn insert_cell(&mut self, key: [i32; 3], mean: f32, count: u16) {
+        if count == 0 || !mean.is_finite() {
+            return;
+        }
+        let (block_key, at) = split(key);
+        let b = self.block(block_key);
+        let block = &mut self.blocks[b].1;
+        if block.count[at] == 0 {
+            self.cells += 1;
+        }
+        block.count[at] = count.min(self.max_count);
+        block.mean[at] = mean;
+    }
+
     fn key(&self, p: &Vector3<f32>) -> [i32; 3] {
         [
             (p.x * (1.0 / self.voxel)).floor() as i32,
@@ -419,6 +465,48 @@ mod tests {
                 s.gradient[axis]
             );
         }
+    }
+
+    #[test]
+    fn a_map_rebuilt_from_its_cells_samples_the_same() {
+        let mut m = map_with(|x| 40.0 + 20.0 * (x * 1.3).sin());
+        // Cells on both sides of zero and in several blocks, with different counts.
+        for _ in 0..3 {
+            m.insert(&Vector3::new(-7.3, 2.2, -0.1), 90.0);
+        }
+        let cells: Vec<_> = m.cells().collect();
+        assert_eq!(cells.len(), m.len());
+        assert!(cells.iter().any(|c| c.2 == 3) && cells.iter().any(|c| c.2 == 1));
+        let mut rebuilt = IntensityMap::new(&m.config());
+        for &(key, mean, count) in &cells {
+            rebuilt.insert_cell(key, mean, count);
+        }
+        assert_eq!(rebuilt.len(), m.len());
+        assert_eq!(rebuilt.cells().collect::<Vec<_>>(), cells);
+        assert_eq!(rebuilt.voxel(), 0.5);
+        for i in 0..200 {
+            let f = f64::from(i);
+            let p = Vector3::new(
+                -11.0 + f * 0.11,
+                (f * 0.37).sin() * 2.0,
+                (f * 0.23).cos() * 2.0,
+            );
+            assert_eq!(m.sample(&p), rebuilt.sample(&p), "{p}");
+        }
+        // A cell's key is the voxel it holds.
+        let only = one_cell_map(40.0).cells().collect::<Vec<_>>();
+        assert_eq!(only, vec![([0, 0, 0], 40.0, 1)]);
+        let mut negative = IntensityMap::new(&m.config());
+        negative.insert(&Vector3::new(-0.1, -2.6, 1.9), 7.0);
+        assert_eq!(negative.cells().next().unwrap().0, [-1, -6, 3]);
+        // Nothing is made of no observation; a count past the cap is capped.
+        negative.insert_cell([5, 5, 5], 1.0, 0);
+        negative.insert_cell([5, 5, 6], f32::NAN, 3);
+        negative.insert_cell([-1, -6, 3], 9.0, u16::MAX);
+        assert_eq!(
+            negative.cells().collect::<Vec<_>>(),
+            vec![([-1, -6, 3], 9.0, 20)]
+        );
     }
 
     #[test]

@@ -17,6 +17,7 @@ pub mod intensity_map;
 pub mod local_map;
 pub mod scan;
 pub mod se3;
+pub mod site_map;
 pub mod solver;
 pub mod world_map;
 

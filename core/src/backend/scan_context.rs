@@ -62,6 +62,23 @@ impl ScanContext {
             let cell = &mut cells[s * rings + k];
             *cell = cell.max(eta.max(0.0));
         }
+        Self::from_grid(sectors, rings, cells)
+    }
+
+    /// A descriptor from its cells as [`Self::cells`] gives them (e.g. read back from a file):
+    /// `None` unless there are `sectors × rings ≥ 1` of them, each finite and non-negative, as
+    /// [`Self::new`] makes them. The derived sums are recomputed, so the result equals the
+    /// descriptor the cells came from.
+    pub fn from_cells(sectors: usize, rings: usize, cells: Vec<f32>) -> Option<Self> {
+        let valid = sectors > 0
+            && rings > 0
+            && sectors.checked_mul(rings) == Some(cells.len())
+            && cells.iter().all(|v| v.is_finite() && *v >= 0.0);
+        valid.then(|| Self::from_grid(sectors, rings, cells))
+    }
+
+    /// The descriptor of a filled grid: the column norms and the ring key derived from it.
+    fn from_grid(sectors: usize, rings: usize, cells: Vec<f32>) -> Self {
         let norms = cells
             .chunks_exact(rings)
             .map(|c| c.iter().map(|v| v * v).sum::<f32>().sqrt())
@@ -78,6 +95,21 @@ impl ScanContext {
             ring_key,
             ring_key_norm,
         }
+    }
+
+    /// Sectors (columns).
+    pub fn sectors(&self) -> usize {
+        self.sectors
+    }
+
+    /// Rings (rows).
+    pub fn rings(&self) -> usize {
+        self.rings
+    }
+
+    /// The grid, row-major by sector: cell `(sector, ring)` is `cells()[sector * rings() + ring]`.
+    pub fn cells(&self) -> &[f32] {
+        &self.cells
     }
 
     /// The shift-invariant ring key.
@@ -215,6 +247,25 @@ mod tests {
         assert!((same - 1.0).abs() < 1e-6, "{same}");
         assert!(different < 0.9, "{different}");
         assert!(a.ring_key_distance(&b) > 0.01);
+    }
+
+    #[test]
+    fn a_descriptor_rebuilt_from_its_cells_is_equal() {
+        let config = ScanContextConfig::default();
+        let a = ScanContext::new(place(), &config);
+        let b = ScanContext::from_cells(a.sectors(), a.rings(), a.cells().to_vec()).unwrap();
+        assert_eq!(a, b);
+        assert_eq!((b.sectors(), b.rings()), (config.sectors, config.rings));
+        let n = a.cells().len();
+        assert!(ScanContext::from_cells(a.sectors(), a.rings(), vec![0.0; n - 1]).is_none());
+        assert!(ScanContext::from_cells(0, 0, Vec::new()).is_none());
+        assert!(ScanContext::from_cells(usize::MAX, 2, Vec::new()).is_none());
+        let mut negative = a.cells().to_vec();
+        negative[3] = -1.0;
+        assert!(ScanContext::from_cells(a.sectors(), a.rings(), negative).is_none());
+        let mut nan = a.cells().to_vec();
+        nan[3] = f32::NAN;
+        assert!(ScanContext::from_cells(a.sectors(), a.rings(), nan).is_none());
     }
 
     #[test]
