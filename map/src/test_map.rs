@@ -1,0 +1,144 @@
+//! Tests' site maps: made by a xorshift from a seed, so every run and machine gets the same.
+
+use glint_core::backend::config::ScanContextConfig;
+use glint_core::backend::keyframe::{CloudPoint, Keyframe};
+use glint_core::backend::pose_graph::Edge;
+use glint_core::backend::scan_context::ScanContext;
+use glint_core::config::IntensityMapConfig;
+use glint_core::intensity_map::IntensityMap;
+use glint_core::site_map::{SiteKeyframe, SiteMap};
+use nalgebra::{Isometry3, Matrix6, Vector3};
+
+/// Marsaglia's xorshift64.
+pub struct XorShift(u64);
+
+impl XorShift {
+    pub fn new(seed: u64) -> Self {
+        Self(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        let mut x = self.0;
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        self.0 = x;
+        x
+    }
+
+    /// Uniform in [lo, hi).
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Uniform in 0..n.
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n as u64) as usize
+    }
+}
+
+/// A map of `keyframes` keyframes along a wandering path, each holding `points` points (a
+/// quarter edges, a quarter planes, half cloud) except every fourth, which has released them;
+/// intensity cells around the path; odometry edges and a loop edge every fifth keyframe.
+pub fn site_map(seed: u64, keyframes: usize, points: usize) -> SiteMap {
+    let mut rng = XorShift::new(seed);
+    let sc = ScanContextConfig::default();
+    let mut intensity = IntensityMap::new(&IntensityMapConfig::default());
+    let mut site_keyframes = Vec::with_capacity(keyframes);
+    let mut edges = Vec::new();
+    for i in 0..keyframes {
+        let yaw = rng.range(-3.0, 3.0);
+        let position = Vector3::new(i as f64 * 0.8, (i as f64 * 0.1).sin() * 5.0, 0.3);
+        let pose = Isometry3::new(position, Vector3::new(0.01, -0.02, yaw));
+        let odom_pose = Isometry3::new(position * 1.01, Vector3::z() * (yaw + 0.01));
+        let mut point = || {
+            [
+                rng.range(-30.0, 30.0) as f32,
+                rng.range(-30.0, 30.0) as f32,
+                rng.range(-1.5, 4.0) as f32,
+            ]
+        };
+        let released = i % 4 == 3;
+        let n = if released { 0 } else { points };
+        let kf_edges: Vec<_> = (0..n / 4).map(|_| point()).collect();
+        let planes: Vec<_> = (0..n / 4).map(|_| point()).collect();
+        let positions: Vec<_> = (0..n - n / 4 * 2).map(|_| point()).collect();
+        let cloud: Vec<_> = positions
+            .into_iter()
+            .map(|position| CloudPoint {
+                position,
+                eta: rng.range(0.0, 120.0) as f32,
+            })
+            .collect();
+        let descriptor = ScanContext::new(cloud.iter().map(|c| (c.position.into(), c.eta)), &sc);
+        for c in cloud.iter().step_by(4) {
+            let world = pose.cast::<f32>() * nalgebra::Point3::from(c.position);
+            intensity.insert(&world.coords, c.eta);
+        }
+        if i > 0 {
+            edges.push(edge(&mut rng, i - 1, i, false));
+        }
+        if i >= 5 && i % 5 == 0 {
+            edges.push(edge(&mut rng, i - 5, i, true));
+        }
+        site_keyframes.push(SiteKeyframe {
+            pose,
+            keyframe: Keyframe {
+                time_ns: 1_700_000_000_000_000_000 + i as u64 * 250_000_000,
+                odom_pose,
+                edges: kf_edges,
+                planes,
+                cloud,
+            },
+            descriptor,
+        });
+    }
+    SiteMap {
+        created_ns: 1_700_000_000_000_000_000 + seed,
+        sensor_model: "VLP-16".into(),
+        base_from_sensor: Isometry3::new(Vector3::new(0.1, 0.0, 1.2), Vector3::new(0.0, 0.0, 0.02)),
+        keyframes: site_keyframes,
+        intensity,
+        edges,
+    }
+}
+
+fn edge(rng: &mut XorShift, from: usize, to: usize, robust: bool) -> Edge {
+    let measurement = Isometry3::new(
+        Vector3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), 0.0),
+        Vector3::z() * rng.range(-0.5, 0.5),
+    );
+    let mut information = Matrix6::from_diagonal_element(100.0);
+    for r in 0..6 {
+        for c in r + 1..6 {
+            let v = rng.range(-1.0, 1.0);
+            information[(r, c)] = v;
+            information[(c, r)] = v;
+        }
+    }
+    Edge {
+        from,
+        to,
+        measurement,
+        information,
+        robust,
+    }
+}
+
+/// Panics unless `a` and `b` hold the same map, bit for bit (the intensity maps compared
+/// through their cells).
+pub fn assert_same(a: &SiteMap, b: &SiteMap) {
+    assert_eq!(a.created_ns, b.created_ns);
+    assert_eq!(a.sensor_model, b.sensor_model);
+    assert_eq!(a.base_from_sensor, b.base_from_sensor);
+    assert_eq!(a.keyframes.len(), b.keyframes.len());
+    for (i, (x, y)) in a.keyframes.iter().zip(&b.keyframes).enumerate() {
+        assert_eq!(x, y, "keyframe {i}");
+    }
+    assert_eq!(a.intensity.config(), b.intensity.config());
+    assert!(
+        a.intensity.cells().eq(b.intensity.cells()),
+        "intensity cells"
+    );
+    assert_eq!(a.edges, b.edges);
+}
