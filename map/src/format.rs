@@ -240,7 +240,8 @@ pub fn decode(bytes: &[u8]) -> Result<SiteMap, MapError> {
             .map(|v| v.to_bits())
             .collect::<Vec<_>>()
     };
-    if extent.is_some() != map.extent().is_some() || bits(extent) != bits(map.extent()) {
+    let computed = map.extent();
+    if extent.is_some() != computed.is_some() || bits(extent) != bits(computed) {
         return Err(malformed("the header's extent is not the keyframes'"));
     }
     Ok(map)

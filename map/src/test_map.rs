@@ -39,7 +39,7 @@ impl XorShift {
 
 /// A map of `keyframes` keyframes along a wandering path, each holding `points` points (a
 /// quarter edges, a quarter planes, half cloud) except every fourth, which has released them;
-/// intensity cells around the path; odometry edges and a loop edge every fifth keyframe.
+/// intensity cells on the floor along the path; odometry edges and a loop edge every fifth keyframe.
 pub fn site_map(seed: u64, keyframes: usize, points: usize) -> SiteMap {
     let mut rng = XorShift::new(seed);
     let sc = ScanContextConfig::default();
@@ -71,9 +71,14 @@ pub fn site_map(seed: u64, keyframes: usize, points: usize) -> SiteMap {
             })
             .collect();
         let descriptor = ScanContext::new(cloud.iter().map(|c| (c.position.into(), c.eta)), &sc);
-        for c in cloud.iter().step_by(4) {
-            let world = pose.cast::<f32>() * nalgebra::Point3::from(c.position);
-            intensity.insert(&world.coords, c.eta);
+        // Intensity lies on surfaces, as in a real map: here a 6 m floor patch under each
+        // keyframe holding its points, overlapping its neighbours'.
+        if !released {
+            for (a, b) in (0..30).flat_map(|a| (0..30).map(move |b| (a, b))) {
+                let x = position.x as f32 - 3.0 + a as f32 * 0.2 + 0.1;
+                let y = position.y as f32 - 3.0 + b as f32 * 0.2 + 0.1;
+                intensity.insert(&Vector3::new(x, y, 0.1), rng.range(0.0, 120.0) as f32);
+            }
         }
         if i > 0 {
             edges.push(edge(&mut rng, i - 1, i, false));
