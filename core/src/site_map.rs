@@ -14,7 +14,8 @@ use crate::backend::pose_graph::{Edge, PoseGraph};
 use crate::backend::scan_context::ScanContext;
 use crate::intensity_map::IntensityMap;
 
-/// A site map. See the module docs for its frame.
+/// A site map. Its map frame is the mapping run's first base_link pose; keyframe poses are the
+/// sensor's in it.
 #[derive(Debug, Clone)]
 pub struct SiteMap {
     /// When the map was made, ns since the Unix epoch.
