@@ -65,6 +65,7 @@ extern "C" {
 #define GLINT_STATUS_LOOP_CLOSED 0x10u  /* map corrected; this map pose may jump */
 #define GLINT_STATUS_PREDICTED 0x20u    /* extrapolated, not measured */
 #define GLINT_STATUS_SENSOR_SILENT 0x40u /* no packets from the sensor recently */
+#define GLINT_STATUS_RELOCALISING 0x80u /* map pose not verified in the saved map */
 
 /** Values of glint_pose_v1.frame; treat other values as unknown. */
 #define GLINT_FRAME_ODOM 0u

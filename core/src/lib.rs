@@ -8,6 +8,7 @@
 pub mod backend;
 pub mod metrics;
 pub mod odometry;
+pub mod tracker;
 pub mod trajectory;
 
 pub mod calibration;
@@ -15,6 +16,7 @@ pub mod config;
 pub mod features;
 pub mod intensity_map;
 pub mod local_map;
+pub mod localiser;
 pub mod scan;
 pub mod se3;
 pub mod site_map;

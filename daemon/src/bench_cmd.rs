@@ -10,7 +10,8 @@ use anyhow::{bail, Result};
 use clap::Args;
 use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
-use glint_core::odometry::{FrontEnd, Odometry, Stage};
+use glint_core::odometry::{FrontEnd, Stage};
+use glint_core::tracker::Tracker;
 
 use crate::capture::{self, SensorArgs};
 use crate::config::DaemonConfig;
@@ -51,7 +52,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let mut busy = Duration::ZERO;
     for _ in 0..args.repeat.max(1) {
         let mut front_end = FrontEnd::new(&config);
-        let mut odometry = Odometry::new(&config);
+        let mut tracker = Tracker::new(&config, None);
         let mut features = SweepFeatures::default();
         let mut points = Vec::new();
         sweeps = 0;
@@ -64,7 +65,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             front_end.process(&scan, &mut features);
             let t1 = Instant::now();
             let mut last = t1;
-            odometry.register(&features, |stage| {
+            tracker.track(&features, None, |stage| {
                 let now = Instant::now();
                 let ms = (now - last).as_secs_f64() * 1e3;
                 last = now;

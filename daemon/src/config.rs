@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use glint_core::backend::config::BackEndConfig;
 use glint_core::config::OdometryConfig;
+use glint_core::localiser::LocaliserConfig;
 use glint_driver::calibration::load_calibration;
 use glint_driver::udp::UdpConfig;
 use glint_driver::{Model, Ports, StreamConfig, SweepConfig};
@@ -33,6 +34,68 @@ pub struct DaemonConfig {
     pub ipc: IpcConfig,
     /// Files written while running.
     pub output: OutputConfig,
+    /// Mapping a site, or localising in its saved map.
+    pub site_map: SiteMapConfig,
+    /// The localiser's tuning (`glint_core::localiser`).
+    pub localiser: LocaliserConfig,
+}
+
+/// What `glintd run` does with a saved site map.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SiteMapMode {
+    /// No site map: every run's `map` frame starts where the robot booted.
+    #[default]
+    Off,
+    /// Build the site's map and save it to `path` (on shutdown and every `autosave_s`).
+    Mapping,
+    /// Localise in the map saved at `path`; it stays fixed.
+    Localisation,
+}
+
+/// `[site_map]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SiteMapConfig {
+    /// `off`, `mapping` or `localisation`.
+    pub mode: SiteMapMode,
+    /// The map file (`*.glintmap`).
+    pub path: Option<PathBuf>,
+    /// Mapping: save this often while running, s (0: only on shutdown).
+    pub autosave_s: f64,
+    /// Localisation: where `base_link` is believed to be at start, `[x, y, yaw]` in the map
+    /// (m, m, rad); none to search the whole map.
+    pub initial_pose: Option<[f64; 3]>,
+}
+
+impl Default for SiteMapConfig {
+    fn default() -> Self {
+        Self {
+            mode: SiteMapMode::Off,
+            path: None,
+            autosave_s: 60.0,
+            initial_pose: None,
+        }
+    }
+}
+
+/// The sensor's pose in the map from a `base_link` pose `[x, y, yaw]` there (m, m, rad) and
+/// the mounting: a relocalisation hint.
+pub fn initial_pose(xy_yaw: &[f64], base_from_sensor: &Isometry3<f64>) -> Result<Isometry3<f64>> {
+    let [x, y, yaw] = xy_yaw else {
+        bail!(
+            "an initial pose is x, y, yaw: three numbers, not {}",
+            xy_yaw.len()
+        );
+    };
+    if !(x.is_finite() && y.is_finite() && yaw.is_finite()) {
+        bail!("an initial pose must be finite numbers");
+    }
+    let base = Isometry3::from_parts(
+        Translation3::new(*x, *y, 0.0),
+        UnitQuaternion::from_euler_angles(0.0, 0.0, *yaw),
+    );
+    Ok(base * base_from_sensor)
 }
 
 /// `[sensor]`.
@@ -276,6 +339,25 @@ impl DaemonConfig {
             .any(|v| !v.is_finite())
         {
             bail!("mounting: translation and rotation_rpy must be finite numbers");
+        }
+        let site = &self.site_map;
+        if site.mode != SiteMapMode::Off && site.path.is_none() {
+            bail!(
+                "site_map.path: mode {:?} needs the map file's path",
+                site.mode
+            );
+        }
+        if !(site.autosave_s.is_finite() && site.autosave_s >= 0.0) {
+            bail!(
+                "site_map.autosave_s = {}: must be finite and >= 0",
+                site.autosave_s
+            );
+        }
+        if let Some(p) = site.initial_pose {
+            initial_pose(&p, &Isometry3::identity()).context("site_map.initial_pose")?;
+        }
+        if site.mode == SiteMapMode::Mapping && !self.pipeline.loop_closure {
+            bail!("site_map.mode = \"mapping\" needs pipeline.loop_closure = true");
         }
         glint_ipc::Domain::new(&self.ipc.domain)
             .map_err(|e| anyhow::anyhow!("ipc.domain = {:?}: {e}", self.ipc.domain))?;

@@ -67,6 +67,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
         pace: Pace::Max,
         predicted_rate: 50.0,
         config: None,
+        save_map: Some(args.out.join("site.glintmap")),
+        localise: None,
+        initial_pose: None,
         sensor: SensorArgs {
             model: None,
             calibration: None,
@@ -76,7 +79,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         },
     })?;
     say!(
-        "wrote {}/trajectory.tum (SLAM, TUM), trajectory_kitti.txt, odometry.tum, map.pcd; compare with evo: evo_ape tum {0}/groundtruth.tum {0}/trajectory.tum -a",
+        "wrote {}/trajectory.tum (SLAM, TUM), trajectory_kitti.txt, odometry.tum, map.pcd, site.glintmap (localise in it with glintd replay CAPTURE --localise); compare with evo: evo_ape tum {0}/groundtruth.tum {0}/trajectory.tum -a",
         args.out.display()
     );
     Ok(())

@@ -1,35 +1,15 @@
-//! `glintd`: Glint's daemon and command-line tool. A thin crate that wires the libraries: each
-//! subcommand lives in its own module; `main` prints an error chain once and sets the exit code.
+//! `glintd`: Glint's daemon and command-line tool. Parses the command line, sets up logging,
+//! runs the subcommand from the library (`lib.rs`), prints an error chain once and sets the
+//! exit code.
 
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-/// Prints a line to stdout; a closed pipe (`glintd info … | head`) ends the program quietly
-/// instead of panicking as `println!` would.
-macro_rules! say {
-    ($($arg:tt)*) => {
-        $crate::print_line(format_args!($($arg)*))
-    };
-}
-
-mod bench_cmd;
-mod capture;
-mod config;
-mod decode_cmd;
-mod demo_cmd;
-mod echo_cmd;
-mod eval_cmd;
-mod info_cmd;
-mod outputs;
-mod pipeline;
-mod posegraph_cmd;
-mod publish;
-mod record_cmd;
-mod replay_cmd;
-mod run_cmd;
-mod signals;
-mod sim_cmd;
+use glintd::{
+    bench_cmd, decode_cmd, demo_cmd, echo_cmd, eval_cmd, info_cmd, map_cmd, posegraph_cmd, record_cmd,
+    replay_cmd, run_cmd, sim_cmd,
+};
 
 /// Glint: intensity-assisted LiDAR localisation for VLP-16 AGVs.
 #[derive(Parser, Debug)]
@@ -61,19 +41,10 @@ enum Command {
     Record(record_cmd::RecordArgs),
     /// Optimise a g2o pose graph: initial and final cost, iterations, time.
     Posegraph(posegraph_cmd::PoseGraphArgs),
+    /// Look into a saved site map: `info` (header, extent, size), `export` (a point cloud).
+    Map(map_cmd::MapArgs),
     /// Time the odometry per sweep on one thread (pin it with taskset for the one-core figure).
     Bench(bench_cmd::BenchArgs),
-}
-
-fn print_line(args: std::fmt::Arguments<'_>) {
-    use std::io::Write;
-    if let Err(e) = writeln!(std::io::stdout().lock(), "{args}") {
-        if e.kind() == std::io::ErrorKind::BrokenPipe {
-            std::process::exit(0);
-        }
-        eprintln!("glintd: cannot write to stdout: {e}");
-        std::process::exit(1);
-    }
 }
 
 /// Logs go to journald when systemd connected stderr to the journal (it sets `JOURNAL_STREAM`),
@@ -119,6 +90,7 @@ fn main() -> ExitCode {
         Command::Sim(args) => sim_cmd::run(args),
         Command::Posegraph(args) => posegraph_cmd::run(args),
         Command::Bench(args) => bench_cmd::run(args),
+        Command::Map(args) => map_cmd::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

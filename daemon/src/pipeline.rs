@@ -28,23 +28,26 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, Context, Result};
 use crossbeam_channel::{bounded, never, tick, Receiver, RecvTimeoutError, Sender, TrySendError};
 use glint_core::backend::config::BackEndConfig;
-use glint_core::backend::keyframe::{Keyframe, KeyframeSelector};
-use glint_core::backend::{BackEnd, BackEndStage, BackEndStats};
-use glint_core::config::OdometryConfig;
+use glint_core::backend::keyframe::Keyframe;
+use glint_core::backend::{BackEnd, BackEndStage, BackEndStats, SiteMapHeader};
+use glint_core::config::{IntensityMapConfig, OdometryConfig};
 use glint_core::features::SweepFeatures;
-use glint_core::odometry::{FrontEnd, Odometry, OdometryEstimate, Stage, TrackingStatus};
+use glint_core::localiser::{localisation_keyframes, Localiser, LocaliserConfig, MapState};
+use glint_core::odometry::{FrontEnd, OdometryEstimate, Stage, TrackingStatus};
 use glint_core::scan::{Scan, ScanPoint};
-use glint_core::se3::exp;
+use glint_core::se3::{base_covariance, exp, to_base};
+use glint_core::site_map::SiteMap;
+use glint_core::tracker::{Correction, MapFix, Tracker, TrackerEvent, RESUME_GAP_NS};
 use glint_core::trajectory::{interpolate, StampedPose};
 use glint_core::world_map::WorldMap;
 use glint_driver::udp::{host_now_ns, Datagram, UdpConfig, UdpCounters, UdpSource};
 use glint_driver::{PacketKind, Ports, SensorStream, StreamConfig, Sweep, SweepRecycler};
 use glint_ipc::{Status, StatusFlags};
-use nalgebra::{Isometry3, Vector3, Vector6};
+use nalgebra::{Isometry3, Vector3};
 
 use crate::capture::{replay_stream, CaptureReport};
 use crate::outputs::{write_map, TrajectoryWriter};
-use crate::publish::{base_covariance, PoseBus, PoseSample};
+use crate::publish::{PoseBus, PoseSample};
 
 /// How fast a capture is replayed.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -128,6 +131,8 @@ pub struct Options {
     pub keep_estimates: bool,
     /// Loop closure and pose-graph optimisation (None: odometry only).
     pub backend: Option<BackEndConfig>,
+    /// Saving the run's site map, or localising in a saved one.
+    pub site_map: SiteMapOptions,
     /// The odometry's own poses (TUM), streamed, beside the corrected `trajectory`.
     pub odom_trajectory: Option<PathBuf>,
     /// Diagnostic: start each sweep's alignment from these poses (ground truth in the map
@@ -140,6 +145,51 @@ pub struct Options {
     pub on_ready: Option<Box<dyn FnOnce()>>,
     /// Called about once a second while every stage is alive (systemd's watchdog).
     pub on_alive: Option<Box<dyn FnMut()>>,
+}
+
+/// The saved site map's part in a run (see `docs/localisation.md`).
+#[derive(Default)]
+pub struct SiteMapOptions {
+    /// Mapping: write the run's map here at the end (needs the back end).
+    pub save: Option<PathBuf>,
+    /// Mapping, live: also save it this often while running.
+    pub autosave: Option<Duration>,
+    /// Localisation: the saved map to localise in; the back end's place is taken by the
+    /// localiser.
+    pub localise: Option<SiteMap>,
+    /// Localisation: where the sensor is believed to be in the map, narrowing the first
+    /// relocalisation.
+    pub hint: Option<Isometry3<f64>>,
+    /// Localisation: the localiser's tuning.
+    pub localiser: LocaliserConfig,
+}
+
+impl SiteMapOptions {
+    fn mode(&self) -> SiteMapMode {
+        match (&self.localise, &self.save) {
+            (Some(_), _) => SiteMapMode::Localising,
+            (None, Some(_)) => SiteMapMode::Mapping,
+            (None, None) => SiteMapMode::Off,
+        }
+    }
+}
+
+/// What the run does with a site map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SiteMapMode {
+    Off,
+    Mapping,
+    Localising,
+}
+
+/// A relocalisation: when the first verified pose came, and how much sensor data it took
+/// since tracking began or was lost.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Relocalisation {
+    /// The first verified pose's time, ns.
+    pub time_ns: u64,
+    /// Sensor time spent relocalising, s.
+    pub searched_s: f64,
 }
 
 /// Per-sweep samples, bounded: past `CAPACITY` the oldest are overwritten, so a run of months
@@ -168,20 +218,18 @@ impl Samples {
         self.values.len()
     }
 
+    /// Whether none are held.
+    pub fn is_empty(&self) -> bool {
+        self.values.is_empty()
+    }
+
     /// The `q` quantile (0..=1) of the samples held, NaN when there are none.
     pub fn quantile(&self, q: f64) -> f64 {
         quantile(&mut self.values.clone(), q)
     }
 }
 
-/// The `q` quantile of `v` (nearest rank), NaN when empty.
-pub fn quantile(v: &mut [f64], q: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
-}
+pub use glint_core::tracker::quantile;
 
 /// Per-stage timing (ms) and per-sweep feature figures.
 #[derive(Debug, Default, Clone)]
@@ -233,6 +281,14 @@ pub struct Summary {
     pub output_errors: Vec<String>,
     /// The back end's report, when it ran.
     pub slam: Option<SlamSummary>,
+    /// Localising: each (re)localisation.
+    pub relocalisations: Vec<Relocalisation>,
+    /// Localising: when tracking in the map was lost (ns).
+    pub map_lost: Vec<u64>,
+    /// Localising: sweeps whose map pose was verified.
+    pub map_verified: u64,
+    /// Mapping: the site map written at the end, and its size (bytes).
+    pub site_map_saved: Option<(PathBuf, u64)>,
 }
 
 /// What the back end did.
@@ -342,67 +398,8 @@ struct Estimated {
     map_from_odom: Isometry3<f64>,
     /// The correction changed with this sweep.
     loop_closed: bool,
-}
-
-/// A gap between sweeps longer than this (sensor silence, lost packets) voids the constant
-/// velocity: tracking restarts from the last pose, held still.
-const RESUME_GAP_NS: u64 = 500_000_000;
-/// After such a gap, a sweep whose features match worse than this (with no history to compare
-/// with) is reported lost rather than trusted: the robot may have moved anywhere meanwhile.
-const RESUME_MIN_QUALITY: f64 = 0.5;
-/// The same, relative to the median of recent tracked sweeps: the fraction of features matched
-/// must be at least this share of the usual one ...
-const RESUME_QUALITY_RATIO: f64 = 0.8;
-/// ... and the mean robust cost per residual at most this multiple of the usual one.
-const RESUME_COST_RATIO: f64 = 2.0;
-
-/// The fraction of the sweep's geometric features that found a correspondence.
-fn match_quality(estimate: &OdometryEstimate, features: &SweepFeatures) -> f32 {
-    match &estimate.alignment {
-        Some(a) => {
-            let offered = (features.edges.len() + features.planes.len()).max(1);
-            ((a.edges + a.planes) as f32 / offered as f32).clamp(0.0, 1.0)
-        }
-        None => 0.0,
-    }
-}
-
-/// How well recent sweeps matched: the yardstick for a sweep after a gap, so the test adapts to
-/// the scene and the sensor instead of fixing absolute numbers.
-#[derive(Debug, Default)]
-struct MatchHistory {
-    quality: Vec<f64>,
-    cost: Vec<f64>,
-}
-
-impl MatchHistory {
-    const LEN: usize = 50;
-
-    fn push(&mut self, quality: f32, cost: f64) {
-        if self.quality.len() == Self::LEN {
-            self.quality.remove(0);
-            self.cost.remove(0);
-        }
-        self.quality.push(f64::from(quality));
-        self.cost.push(cost);
-    }
-
-    /// Whether a sweep aligned after a gap matches the map about as well as tracked sweeps do:
-    /// a wrong alignment after the robot moved in the dark still matches many features in a
-    /// repetitive warehouse, but leaves residuals several times larger (measured: cost 0.023
-    /// against a median of 0.0045 when tracking).
-    fn resumed_match(&self, quality: f32, cost: f64) -> bool {
-        if !cost.is_finite() {
-            return false;
-        }
-        if self.cost.len() < 5 {
-            return f64::from(quality) >= RESUME_MIN_QUALITY;
-        }
-        let typical_quality = quantile(&mut self.quality.clone(), 0.5);
-        let typical_cost = quantile(&mut self.cost.clone(), 0.5);
-        f64::from(quality) >= RESUME_QUALITY_RATIO * typical_quality
-            && cost <= RESUME_COST_RATIO * typical_cost
-    }
+    /// How far the map pose is to be trusted.
+    map_fix: MapFix,
 }
 
 /// Runs the pipeline until the input ends or `options.stop` is set.
@@ -481,26 +478,66 @@ pub fn run(mut options: Options) -> Result<Summary> {
             Ok(())
         })?
     };
-    let (link, backend) = match options.backend.clone() {
-        Some(config) => {
-            let (keyframe_tx, keyframe_rx) = bounded::<Keyframe>(BACK_END_QUEUE);
-            let (reply_tx, reply_rx) = bounded::<Isometry3<f64>>(BACK_END_QUEUE);
-            let link = BackEndLink {
-                config: config.clone(),
-                keyframes: keyframe_tx,
-                corrections: reply_rx,
-                lockstep: matches!(options.input, Input::Capture { .. }),
-                pending: false,
-                dropped: 0,
-            };
-            let heartbeats = heartbeats.clone();
-            let handle = spawn("glint-backend", move || {
-                Ok(run_backend(&config, &keyframe_rx, &reply_tx, &heartbeats))
-            })?;
-            (Some(link), Some(handle))
-        }
-        None => (None, None),
+    let mode = options.site_map.mode();
+    let saver = options.site_map.save.clone().map(|path| MapSaver {
+        path,
+        every: options.site_map.autosave,
+        header: SiteMapHeader {
+            created_ns: glint_driver::udp::host_now_ns(),
+            sensor_model: "VLP-16".into(),
+            base_from_sensor: options.base_from_sensor,
+        },
+        intensity: options.odometry.intensity_map.clone(),
+    });
+    let lockstep = match options.input {
+        Input::Capture { .. } if mode == SiteMapMode::Localising => Lockstep::Immediate,
+        Input::Capture { .. } => Lockstep::NextKeyframe,
+        Input::Live { .. } => Lockstep::Off,
     };
+    let backend_config = options.backend.clone().unwrap_or_default();
+    let (keyframe_tx, keyframe_rx) = bounded::<(u64, Keyframe)>(BACK_END_QUEUE);
+    let (reply_tx, reply_rx) = bounded::<Correction>(BACK_END_QUEUE);
+    let link = BackEndLink {
+        keyframes: keyframe_tx,
+        corrections: reply_rx,
+        lockstep,
+        pending: false,
+        dropped: 0,
+    };
+    let (link, backend, localiser) =
+        match (options.site_map.localise.take(), options.backend.clone()) {
+            (Some(map), _) => {
+                let mut localiser = Localiser::new(
+                    map,
+                    &options.site_map.localiser,
+                    &backend_config.scan_context,
+                );
+                if let Some(hint) = options.site_map.hint {
+                    localiser.hint(hint);
+                }
+                let heartbeats = heartbeats.clone();
+                let handle = spawn("glint-localiser", move || {
+                    run_localiser(localiser, &keyframe_rx, &reply_tx, &heartbeats);
+                    Ok(())
+                })?;
+                (Some(link), None, Some(handle))
+            }
+            (None, Some(config)) => {
+                let heartbeats = heartbeats.clone();
+                let saver = saver.clone();
+                let handle = spawn("glint-backend", move || {
+                    Ok(run_backend(
+                        &config,
+                        saver.as_ref(),
+                        &keyframe_rx,
+                        &reply_tx,
+                        &heartbeats,
+                    ))
+                })?;
+                (Some(link), Some(handle), None)
+            }
+            (None, None) => (None, None, None),
+        };
     let odometry = {
         let heartbeats = heartbeats.clone();
         let config = options.odometry.clone();
@@ -509,11 +546,17 @@ pub fn run(mut options: Options) -> Result<Summary> {
         let map_voxel = options
             .map
             .as_ref()
-            .filter(|_| options.backend.is_none())
+            .filter(|_| backend.is_none())
             .map(|(_, v)| *v);
+        let tracker = match mode {
+            SiteMapMode::Localising => {
+                Tracker::localising(&config, &localisation_keyframes(&backend_config.keyframes))
+            }
+            _ => Tracker::new(&config, link.is_some().then_some(&backend_config.keyframes)),
+        };
         spawn("glint-odometry", move || {
             Ok(run_odometry(
-                &config,
+                tracker,
                 known,
                 map_voxel,
                 link,
@@ -527,7 +570,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
         ready();
     }
 
-    let mut sink = Sink::new(&options)?;
+    let mut sink = Sink::new(&options, mode)?;
     let predicted_rate = options
         .publish
         .as_ref()
@@ -565,7 +608,10 @@ pub fn run(mut options: Options) -> Result<Summary> {
     join(front_end, "front end")?;
     let (world, map_sizes, keyframes_dropped) = join(odometry, "odometry")?;
     let backend = backend.map(|b| join(b, "back end")).transpose()?;
-    let mut summary = sink.finish(world, backend, &options)?;
+    if let Some(l) = localiser {
+        join(l, "localiser")?;
+    }
+    let mut summary = sink.finish(world, backend, saver.as_ref(), &options)?;
     if let Some(slam) = summary.slam.as_mut() {
         slam.keyframes_dropped = keyframes_dropped;
     }
@@ -895,62 +941,147 @@ fn send_beating<T>(
 /// Keyframes allowed to wait for the back end (live: more are dropped, counted).
 const BACK_END_QUEUE: usize = 8;
 
-/// The odometry's end of the back end.
-struct BackEndLink {
-    config: BackEndConfig,
-    keyframes: Sender<Keyframe>,
-    corrections: Receiver<Isometry3<f64>>,
+/// How the odometry waits for the back end's (or the localiser's) answers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Lockstep {
+    /// Live: never; the newest answer applies from whichever sweep follows its arrival.
+    Off,
     /// Replays: each keyframe's answer is awaited when the next keyframe is handed over, so a
     /// correction applies from a sweep fixed by the data while the back end works in parallel
     /// with the odometry for a keyframe interval (about 1 m of travel).
-    lockstep: bool,
-    /// A keyframe was handed over and its answer not yet taken (lockstep).
+    NextKeyframe,
+    /// Replays localising: each keyframe's answer is awaited at once, so a (re)localisation
+    /// applies from the keyframe that made it.
+    Immediate,
+}
+
+/// The odometry's end of the back end or the localiser.
+struct BackEndLink {
+    keyframes: Sender<(u64, Keyframe)>,
+    corrections: Receiver<Correction>,
+    lockstep: Lockstep,
+    /// A keyframe was handed over and its answer not yet taken (`NextKeyframe`).
     pending: bool,
     dropped: u64,
 }
 
 impl BackEndLink {
-    /// Hands a keyframe over. In lockstep, first waits for the previous keyframe's answer and
-    /// returns it.
-    fn offer(&mut self, keyframe: Keyframe, heartbeats: &Heartbeats) -> Option<Isometry3<f64>> {
-        if self.lockstep {
-            let mut answer = None;
-            if self.pending {
-                answer = Some(recv_beating(
-                    &self.corrections,
+    /// Hands a keyframe of odometry epoch `epoch` over. In lockstep, returns the answer due.
+    fn offer(
+        &mut self,
+        epoch: u64,
+        keyframe: Keyframe,
+        heartbeats: &Heartbeats,
+    ) -> Option<Correction> {
+        match self.lockstep {
+            Lockstep::NextKeyframe => {
+                let mut answer = None;
+                if self.pending {
+                    answer = Some(recv_beating(
+                        &self.corrections,
+                        heartbeats,
+                        Heartbeats::ODOMETRY,
+                    )?);
+                }
+                self.pending = send_beating(
+                    &self.keyframes,
+                    (epoch, keyframe),
                     heartbeats,
                     Heartbeats::ODOMETRY,
-                )?);
+                )
+                .is_ok();
+                answer
             }
-            self.pending =
-                send_beating(&self.keyframes, keyframe, heartbeats, Heartbeats::ODOMETRY).is_ok();
-            return answer;
+            Lockstep::Immediate => {
+                send_beating(
+                    &self.keyframes,
+                    (epoch, keyframe),
+                    heartbeats,
+                    Heartbeats::ODOMETRY,
+                )
+                .ok()?;
+                recv_beating(&self.corrections, heartbeats, Heartbeats::ODOMETRY)
+            }
+            Lockstep::Off => {
+                if let Err(TrySendError::Full(_)) = self.keyframes.try_send((epoch, keyframe)) {
+                    self.dropped += 1;
+                    tracing::warn!(
+                        dropped = self.dropped,
+                        "the back end is behind: keyframe dropped"
+                    );
+                }
+                None
+            }
         }
-        if let Err(TrySendError::Full(_)) = self.keyframes.try_send(keyframe) {
-            self.dropped += 1;
-            tracing::warn!(
-                dropped = self.dropped,
-                "the back end is behind: keyframe dropped"
-            );
-        }
-        None
     }
 
-    /// The newest correction the back end has sent, if any (live).
-    fn latest(&self) -> Option<Isometry3<f64>> {
+    /// The newest answer sent, if any (live).
+    fn latest(&self) -> Option<Correction> {
         self.corrections.try_iter().last()
+    }
+}
+
+/// Writes the back end's site map (mapping).
+#[derive(Clone)]
+struct MapSaver {
+    path: PathBuf,
+    /// Live: also this often while running.
+    every: Option<Duration>,
+    header: SiteMapHeader,
+    intensity: IntensityMapConfig,
+}
+
+impl MapSaver {
+    /// Saves `backend`'s map crash-safely; its size in bytes.
+    fn save(&self, backend: &BackEnd) -> Result<u64> {
+        let site_from_world = backend.site_from_world(&self.header.base_from_sensor);
+        let map = backend.site_map(&site_from_world, &self.intensity, self.header.clone());
+        let report = glint_map::save(&self.path, &map)
+            .with_context(|| format!("cannot save the site map {}", self.path.display()))?;
+        Ok(report.bytes)
+    }
+}
+
+fn run_localiser(
+    mut localiser: Localiser,
+    input: &Receiver<(u64, Keyframe)>,
+    output: &Sender<Correction>,
+    heartbeats: &Heartbeats,
+) {
+    while let Some((epoch, keyframe)) = recv_beating(input, heartbeats, Heartbeats::BACK_END) {
+        let (answer, outcome) = localiser.answer(epoch, &keyframe);
+        tracing::debug!(
+            epoch,
+            state = ?outcome.state,
+            verifications = outcome.verifications,
+            "keyframe located"
+        );
+        match outcome.state {
+            MapState::Lost => {
+                tracing::warn!("the scan no longer fits the saved map: lost, relocalising");
+            }
+            MapState::Tracking if outcome.relocalised => {
+                tracing::info!(epoch, "relocalised in the saved map");
+            }
+            _ => {}
+        }
+        if output.send(answer).is_err() {
+            break;
+        }
     }
 }
 
 fn run_backend(
     config: &BackEndConfig,
-    input: &Receiver<Keyframe>,
-    output: &Sender<Isometry3<f64>>,
+    saver: Option<&MapSaver>,
+    input: &Receiver<(u64, Keyframe)>,
+    output: &Sender<Correction>,
     heartbeats: &Heartbeats,
 ) -> (BackEnd, SlamSummary) {
     let mut backend = BackEnd::new(config);
     let mut report = SlamSummary::default();
-    while let Some(keyframe) = recv_beating(input, heartbeats, Heartbeats::BACK_END) {
+    let mut saved = Instant::now();
+    while let Some((_, keyframe)) = recv_beating(input, heartbeats, Heartbeats::BACK_END) {
         let mut last = Instant::now();
         let outcome = backend.add_keyframe(keyframe, |stage| {
             let now = Instant::now();
@@ -972,8 +1103,18 @@ fn run_backend(
                 "loop closed"
             );
         }
-        if output.send(backend.correction()).is_err() {
+        if output.send(Correction::slam(backend.correction())).is_err() {
             break;
+        }
+        // Periodic saves happen here, between keyframes, off the pose path: the odometry never
+        // waits for the back end live.
+        if let Some(s) = saver.filter(|s| s.every.is_some_and(|e| saved.elapsed() >= e)) {
+            heartbeats.beat(Heartbeats::BACK_END);
+            match s.save(&backend) {
+                Ok(bytes) => tracing::info!(path = %s.path.display(), bytes, "site map saved"),
+                Err(e) => tracing::error!("{e:#}"),
+            }
+            saved = Instant::now();
         }
     }
     // Floor edges since the last optimisation: into the final trajectory too.
@@ -986,7 +1127,7 @@ fn run_backend(
 }
 
 fn run_odometry(
-    config: &OdometryConfig,
+    mut tracker: Tracker,
     known: Option<Vec<StampedPose>>,
     map_voxel: Option<f32>,
     mut backend: Option<BackEndLink>,
@@ -994,16 +1135,9 @@ fn run_odometry(
     output: &Sender<Estimated>,
     heartbeats: &Heartbeats,
 ) -> (Option<WorldMap>, (usize, usize, usize), u64) {
-    let mut odometry = Odometry::new(config);
-    let mut selector = KeyframeSelector::new();
-    let mut map_from_odom = Isometry3::identity();
     let mut world = map_voxel.map(WorldMap::new);
-    let mut origin: Option<Isometry3<f64>> = None;
-    let mut history = MatchHistory::default();
-    let mut lost_after_gap = false;
     while let Some(featured) = recv_beating(input, heartbeats, Heartbeats::ODOMETRY) {
         let features = &featured.features;
-        let reference_ns = features.reference_ns;
         let start = Instant::now();
         let mut marks = [start; 3];
         let hook = |stage| {
@@ -1014,99 +1148,60 @@ fn run_odometry(
             };
             marks[i] = Instant::now();
         };
-        // The map frame is the first sweep's sensor frame: known poses are expressed in it.
         let known_pose = known
             .as_deref()
-            .and_then(|gt| interpolate(gt, reference_ns))
-            .map(|g| *origin.get_or_insert(g.inverse()) * g);
-        let after_gap = odometry
-            .last_pose()
-            .filter(|(t, _)| reference_ns > t + RESUME_GAP_NS);
-        let estimate = match (known_pose, after_gap) {
-            (Some(pose), _) => odometry.register_at_known_pose(features, pose, hook),
-            (None, Some((_, last))) => {
-                // The robot may have moved anywhere while the data stopped. Try the sweep from
-                // the last pose on a copy, and keep the copy's maps only if the sweep matches;
-                // otherwise report lost at the last good pose and try again with the next one.
-                let mut probe = odometry.clone();
-                let e = probe.register_from(features, last, hook);
-                let q = match_quality(&e, features);
-                let cost = e.alignment.as_ref().map_or(f64::NAN, |a| a.cost);
-                if e.status != TrackingStatus::Lost && history.resumed_match(q, cost) {
-                    tracing::info!(
-                        quality = q,
-                        cost,
-                        "tracking resumed after a gap in the data"
-                    );
-                    lost_after_gap = false;
-                    odometry = probe;
-                    e
-                } else {
-                    if !lost_after_gap {
-                        tracing::warn!(
-                            quality = q,
-                            cost,
-                            "after a gap in the data the scan does not match the map: lost \
-                             (trying each sweep from the last good pose)"
-                        );
-                        lost_after_gap = true;
-                    }
-                    OdometryEstimate {
-                        time_ns: reference_ns,
-                        pose: last,
-                        velocity: Vector6::zeros(),
-                        status: TrackingStatus::Lost,
-                        alignment: e.alignment,
-                    }
-                }
+            .and_then(|gt| interpolate(gt, features.reference_ns));
+        let tracked = tracker.track(features, known_pose, hook);
+        match tracked.event {
+            Some(TrackerEvent::Resumed { quality, cost }) => {
+                tracing::info!(quality, cost, "tracking resumed after a gap in the data");
             }
-            (None, None) => odometry.register(features, hook),
-        };
-        let departure = known_pose.map(|pose| (estimate.pose.inverse() * pose).translation.vector);
-        let quality = match_quality(&estimate, features);
-        let cost = estimate.alignment.as_ref().map_or(f64::NAN, |a| a.cost);
-        tracing::debug!(quality, cost, "sweep registered");
-        if matches!(
-            estimate.status,
-            TrackingStatus::Tracking | TrackingStatus::Degenerate
-        ) && cost.is_finite()
-        {
-            history.push(quality, cost);
+            Some(TrackerEvent::Restarted { epoch }) => tracing::warn!(
+                epoch,
+                "sweeps stopped matching the odometry's map (moved, or blinded): \
+                 odometry restarted, relocalising"
+            ),
+            Some(TrackerEvent::LostAfterGap { quality, cost }) => tracing::warn!(
+                quality,
+                cost,
+                "after a gap in the data the scan does not match the map: lost \
+                 (trying each sweep from the last good pose)"
+            ),
+            None => {}
         }
+        let estimate = tracked.estimate;
+        tracing::debug!(
+            quality = tracked.quality,
+            cost = tracked.cost,
+            "sweep registered"
+        );
         if let Some(map) = world.as_mut() {
             if estimate.status != TrackingStatus::Lost {
-                for (p, eta) in odometry.map_points(features, &estimate.pose) {
+                for (p, eta) in tracker.map_points(features, &estimate.pose) {
                     map.insert(&p, eta);
                 }
             }
         }
-        let previous_correction = map_from_odom;
+        let previous_correction = tracker.correction();
         if let Some(link) = backend.as_mut() {
-            if estimate.status != TrackingStatus::Lost
-                && selector.is_keyframe(estimate.time_ns, &estimate.pose, &link.config.keyframes)
-            {
-                let keyframe = Keyframe::new(
-                    estimate.time_ns,
-                    estimate.pose,
-                    odometry.deskewed_input(),
-                    odometry.map_points(features, &Isometry3::identity()),
-                    &link.config.keyframes,
-                );
-                if let Some(c) = link.offer(keyframe, heartbeats) {
-                    map_from_odom = c;
+            if let Some(keyframe) = tracked.keyframe {
+                if let Some(c) = link.offer(tracker.epoch(), keyframe, heartbeats) {
+                    tracker.apply(&c);
                 }
             }
-            if !link.lockstep {
+            if link.lockstep == Lockstep::Off {
                 if let Some(c) = link.latest() {
-                    map_from_odom = c;
+                    tracker.apply(&c);
                 }
             }
         }
+        let map_fix = tracker.map_fix(&estimate);
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
         let message = Estimated {
-            map_from_odom,
-            loop_closed: map_from_odom != previous_correction,
-            quality,
+            map_from_odom: tracker.correction(),
+            loop_closed: tracker.correction() != previous_correction,
+            map_fix,
+            quality: tracked.quality,
             received: featured.received,
             stage_ms: [
                 featured.front_ms,
@@ -1119,7 +1214,7 @@ fn run_odometry(
                 features.planes.len(),
                 features.intensity.len(),
             ],
-            departure,
+            departure: tracked.departure,
             estimate,
         };
         if send_beating(output, message, heartbeats, Heartbeats::ODOMETRY).is_err() {
@@ -1127,27 +1222,22 @@ fn run_odometry(
         }
     }
     let dropped = backend.map_or(0, |l| l.dropped);
-    (world, odometry.map_sizes(), dropped)
-}
-
-/// The base pose and body twist from the sensor's, with `m` = `base_link` ← sensor (see
-/// `MountingConfig`): the odom frame is the base's first pose, `T_base = M · T_sensor · M⁻¹`,
-/// and the twist is `Ad_M` of the sensor's.
-fn to_base(
-    m: &Isometry3<f64>,
-    pose: &Isometry3<f64>,
-    twist: &Vector6<f64>,
-) -> (Isometry3<f64>, Vector6<f64>) {
-    let base = m * pose * m.inverse();
-    let w = m.rotation * Vector3::new(twist[0], twist[1], twist[2]);
-    let v =
-        m.rotation * Vector3::new(twist[3], twist[4], twist[5]) + m.translation.vector.cross(&w);
-    (base, Vector6::new(w.x, w.y, w.z, v.x, v.y, v.z))
+    (world, tracker.odometry().map_sizes(), dropped)
 }
 
 /// The publishing end: poses, predictions, status, trajectory files and the report.
 struct Sink {
     base_from_sensor: Isometry3<f64>,
+    /// The published `map` frame from the odometry's corrected world: the mounting (the map
+    /// frame is the first `base_link` pose) unless localising, where the world is the saved
+    /// map's frame already.
+    site_from_world: Isometry3<f64>,
+    /// The trajectory files' frame from the same: the map frame with a site map; without,
+    /// none (the files are in the world itself, the first sensor pose's frame).
+    trajectory_from_world: Option<Isometry3<f64>>,
+    mode: SiteMapMode,
+    /// Localising: since when (sensor time) the map pose has not been verified.
+    searching_since: Option<u64>,
     /// Written as the poses come (map frame), unless `final_trajectory`.
     trajectory: Option<TrajectoryWriter>,
     kitti: Option<TrajectoryWriter>,
@@ -1170,7 +1260,7 @@ struct Sink {
 }
 
 impl Sink {
-    fn new(options: &Options) -> Result<Self> {
+    fn new(options: &Options, mode: SiteMapMode) -> Result<Self> {
         let trajectory = options
             .trajectory
             .as_deref()
@@ -1186,12 +1276,22 @@ impl Sink {
             .as_deref()
             .map(|p| TrajectoryWriter::create(p, false, options.trajectory_max_bytes))
             .transpose()?;
+        let site_from_world = match mode {
+            SiteMapMode::Localising => Isometry3::identity(),
+            _ => options.base_from_sensor,
+        };
         Ok(Self {
             base_from_sensor: options.base_from_sensor,
+            site_from_world,
+            trajectory_from_world: (mode != SiteMapMode::Off).then_some(site_from_world),
+            mode,
+            searching_since: None,
             trajectory,
             kitti,
             odom_trajectory,
-            final_trajectory: options.backend.is_some() && options.keep_estimates,
+            final_trajectory: options.backend.is_some()
+                && mode != SiteMapMode::Localising
+                && options.keep_estimates,
             keep_estimates: options.keep_estimates,
             summary: Summary::default(),
             latest: None,
@@ -1239,15 +1339,13 @@ impl Sink {
             covariance: covariance(&self.base_from_sensor, &pose),
         };
         let map_pose = e.map_from_odom * estimate.pose;
-        let map_base = to_base(&self.base_from_sensor, &map_pose, &estimate.velocity).0;
+        let site_pose = self.site_from_world * map_pose;
+        let map_base = site_pose * self.base_from_sensor.inverse();
+        let map_flags = self.map_flags(flags, &e, estimate.time_ns);
         let map_sample = PoseSample {
             pose: map_base,
-            flags: if e.loop_closed {
-                flags.with(StatusFlags::LOOP_CLOSED)
-            } else {
-                flags
-            },
-            covariance: covariance(&(self.base_from_sensor * e.map_from_odom), &map_base),
+            flags: map_flags,
+            covariance: covariance(&(self.site_from_world * e.map_from_odom), &map_base),
             ..sample
         };
         if let Some(b) = bus {
@@ -1267,10 +1365,14 @@ impl Sink {
         };
         let corrected = StampedPose {
             time_ns: estimate.time_ns,
-            pose: map_pose,
+            pose: self
+                .trajectory_from_world
+                .map_or(map_pose, |t| t * map_pose),
         };
-        // With a final trajectory, the corrected files are written at the end instead.
-        let corrected_now = !self.final_trajectory;
+        // With a final trajectory, the corrected files are written at the end instead;
+        // localising, they hold only poses verified in the map.
+        let corrected_now =
+            !self.final_trajectory && (self.mode != SiteMapMode::Localising || e.map_fix.verified);
         let streamed: [(&str, &mut Option<TrajectoryWriter>, &StampedPose, bool); 3] = [
             (
                 "trajectory",
@@ -1331,6 +1433,47 @@ impl Sink {
         }
         if self.keep_estimates {
             s.estimates.push(stamped);
+        }
+    }
+
+    /// The `map` pose's flags. Off and mapping, the odometry's, with `LOOP_CLOSED` when the
+    /// correction changed. Localising, the odometry's only when the pose is verified in the saved
+    /// map (`LOOP_CLOSED` on the first after a relocalisation); otherwise `RELOCALISING`, with
+    /// `LOST` when tracking in the map was just lost, never `TRACKING`.
+    fn map_flags(&mut self, flags: StatusFlags, e: &Estimated, time_ns: u64) -> StatusFlags {
+        if self.mode != SiteMapMode::Localising {
+            return if e.loop_closed {
+                flags.with(StatusFlags::LOOP_CLOSED)
+            } else {
+                flags
+            };
+        }
+        let fix = e.map_fix;
+        if fix.state == MapState::Lost {
+            self.summary.map_lost.push(time_ns);
+        }
+        if fix.verified {
+            self.summary.map_verified += 1;
+            let since = self.searching_since.take();
+            if fix.relocalised {
+                let searched_s = since.map_or(0.0, |t| time_ns.saturating_sub(t) as f64 * 1e-9);
+                self.summary.relocalisations.push(Relocalisation {
+                    time_ns,
+                    searched_s,
+                });
+                return flags.with(StatusFlags::LOOP_CLOSED);
+            }
+            return flags;
+        }
+        self.searching_since.get_or_insert(time_ns);
+        let unverified = flags
+            .without(StatusFlags::TRACKING)
+            .without(StatusFlags::DEGENERATE)
+            .with(StatusFlags::RELOCALISING);
+        if fix.state == MapState::Lost {
+            unverified.with(StatusFlags::LOST)
+        } else {
+            unverified
         }
     }
 
@@ -1428,10 +1571,19 @@ impl Sink {
         mut self,
         world: Option<WorldMap>,
         backend: Option<(BackEnd, SlamSummary)>,
+        saver: Option<&MapSaver>,
         options: &Options,
     ) -> Result<Summary> {
         let mut world = world;
         if let Some((backend, mut report)) = backend {
+            if let Some(saver) = saver {
+                // The trajectory written at the end is in the saved map's (levelled) frame.
+                self.trajectory_from_world = Some(backend.site_from_world(&self.base_from_sensor));
+                match saver.save(&backend) {
+                    Ok(bytes) => self.summary.site_map_saved = Some((saver.path.clone(), bytes)),
+                    Err(err) => self.summary.output_errors.push(format!("{err:#}")),
+                }
+            }
             if self.keep_estimates {
                 report.trajectory = backend.trajectory(&self.summary.estimates);
             }
@@ -1441,7 +1593,13 @@ impl Sink {
                     .flatten()
                 {
                     for pose in &report.trajectory {
-                        if let Err(err) = writer.write(pose) {
+                        let pose = StampedPose {
+                            time_ns: pose.time_ns,
+                            pose: self
+                                .trajectory_from_world
+                                .map_or(pose.pose, |t| t * pose.pose),
+                        };
+                        if let Err(err) = writer.write(&pose) {
                             self.summary.output_errors.push(format!("{err:#}"));
                             break;
                         }
@@ -1540,23 +1698,6 @@ mod tests {
     }
 
     #[test]
-    fn a_resumed_sweep_is_judged_against_recent_ones() {
-        let mut history = MatchHistory::default();
-        // With no history, an absolute floor on the matched fraction.
-        assert!(history.resumed_match(0.6, 0.01));
-        assert!(!history.resumed_match(0.3, 0.01));
-        assert!(!history.resumed_match(0.9, f64::NAN));
-        for i in 0..60 {
-            history.push(0.7 + 0.001 * (i % 5) as f32, 0.0045);
-        }
-        assert_eq!(history.cost.len(), MatchHistory::LEN);
-        assert!(history.resumed_match(0.68, 0.006));
-        // As many matches as usual, but five times the residual: a wrong alignment.
-        assert!(!history.resumed_match(0.62, 0.023));
-        assert!(!history.resumed_match(0.4, 0.004));
-    }
-
-    #[test]
     fn samples_stay_bounded() {
         let mut s = Samples::default();
         for i in 0..(Samples::CAPACITY + 10) {
@@ -1565,26 +1706,5 @@ mod tests {
         assert_eq!(s.len(), Samples::CAPACITY);
         // The ten oldest were overwritten.
         assert_eq!(s.quantile(0.0), 10.0);
-    }
-
-    #[test]
-    fn the_base_pose_follows_the_mounting() {
-        // Sensor mounted 1 m ahead of the base, facing backwards; the sensor drives 1 m along its
-        // own x (backwards for the base) while turning.
-        let m = Isometry3::from_parts(
-            nalgebra::Translation3::new(1.0, 0.0, 0.0),
-            nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::PI),
-        );
-        let twist = Vector6::new(0.0, 0.0, 0.3, 1.0, 0.0, 0.0);
-        let sensor_pose = exp(&twist);
-        let (base, base_twist) = to_base(&m, &sensor_pose, &twist);
-        // Consistency: the base pose is the exponential of the base twist.
-        let from_twist = exp(&base_twist);
-        assert!((base.translation.vector - from_twist.translation.vector).norm() < 1e-9);
-        assert!(base.rotation.angle_to(&from_twist.rotation) < 1e-9);
-        // And the sensor, seen from the moved base, is where it was mounted.
-        let sensor_in_odom = base * m;
-        let expected = m * sensor_pose;
-        assert!((sensor_in_odom.translation.vector - expected.translation.vector).norm() < 1e-9);
     }
 }

@@ -25,33 +25,8 @@ pub struct PoseSample {
     /// Match quality, 0..=1.
     pub quality: f32,
     /// The pose's covariance over `[x, y, z, roll, pitch, yaw]` of `base_link` in the pose's
-    /// frame (see [`base_covariance`]), when the sweep was aligned.
+    /// frame (see `glint_core::se3::base_covariance`), when the sweep was aligned.
     pub covariance: Option<Matrix6<f64>>,
-}
-
-/// The covariance of the published `base_link` pose, over `[x, y, z, roll, pitch, yaw]` in the
-/// published frame (the wire's order, rotations about that frame's axes), from the
-/// alignment's over `[δθ, δt]` in the odometry's world frame about the sensor
-/// (`glint_core::solver::Alignment::covariance`). `frame_from_world` takes the odometry's world
-/// frame to the published one, `sensor` is the sensor's pose in the world and `base` the
-/// published pose. A rotation δθ about the sensor moves the base by δθ × (base − sensor) as well.
-pub fn base_covariance(
-    covariance: &Matrix6<f64>,
-    frame_from_world: &Isometry3<f64>,
-    sensor: &Isometry3<f64>,
-    base: &Isometry3<f64>,
-) -> Matrix6<f64> {
-    let rotation = frame_from_world.rotation.to_rotation_matrix().into_inner();
-    let lever = base.translation.vector - (frame_from_world * sensor).translation.vector;
-    let mut jacobian = Matrix6::zeros();
-    jacobian
-        .fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(-lever.cross_matrix() * rotation));
-    jacobian.fixed_view_mut::<3, 3>(0, 3).copy_from(&rotation);
-    jacobian.fixed_view_mut::<3, 3>(3, 0).copy_from(&rotation);
-    let published = jacobian * covariance * jacobian.transpose();
-    // Symmetric to the last bit, as consumers may check.
-    (published + published.transpose()) * 0.5
 }
 
 /// Publishes the daemon's poses and status.
@@ -152,6 +127,7 @@ fn to_wire(sample: &PoseSample, sequence: u64, frame: Frame) -> Pose {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glint_core::se3::base_covariance;
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
     fn sample(covariance: Option<Matrix6<f64>>, flags: StatusFlags) -> PoseSample {
@@ -192,23 +168,6 @@ mod tests {
         let wire = to_wire(&sample(Some(t), StatusFlags::TRACKING), 0, Frame::ODOM);
         assert_eq!(wire.covariance[7], t[(1, 1)]);
         assert_eq!(wire.covariance[35], t[(5, 5)]);
-    }
-
-    /// A base 2 m ahead of the sensor swings 2 mm sideways per mrad of yaw about the sensor.
-    #[test]
-    fn a_rotation_about_the_sensor_moves_the_base_by_its_lever_arm() {
-        let mut c = Matrix6::zeros();
-        c[(2, 2)] = 1e-6;
-        let sensor = Isometry3::identity();
-        let base = Isometry3::translation(2.0, 0.0, 0.0);
-        let b = base_covariance(&c, &Isometry3::identity(), &sensor, &base);
-        assert!((b[(1, 1)] - 4e-6).abs() < 1e-15, "{b}");
-        assert!(b[(0, 0)].abs() < 1e-15, "{b}");
-        // Position and yaw move together.
-        assert!(
-            (b[(1, 5)] - 2e-6).abs() < 1e-15 && b[(1, 5)] == b[(5, 1)],
-            "{b}"
-        );
     }
 
     /// Without an alignment, or lost, the covariance is the nominal one inflated: never a

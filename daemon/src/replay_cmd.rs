@@ -17,7 +17,7 @@ use nalgebra::Vector3;
 
 use crate::capture::SensorArgs;
 use crate::config::DaemonConfig;
-use crate::pipeline::{self, Input, Options, Pace, PublishOptions};
+use crate::pipeline::{self, Input, Options, Pace, PublishOptions, SiteMapOptions};
 
 /// Arguments of `glintd replay`.
 #[derive(Args, Debug)]
@@ -67,6 +67,25 @@ pub struct ReplayArgs {
     /// Rate of the predicted pose stream, Hz (0: off).
     #[arg(long, default_value_t = 50.0)]
     pub predicted_rate: f64,
+    /// Mapping: write the run's site map here at the end (any file name; `*.glintmap` by
+    /// convention), in the map frame the trajectory is written in: the first `base_link` pose.
+    /// With `--localise`, the map to extend is not changed: this is refused.
+    #[arg(long, value_name = "MAP")]
+    pub save_map: Option<PathBuf>,
+    /// Localisation: localise in this saved site map instead of mapping. `--trajectory` then
+    /// holds the sensor's poses in the map frame for the sweeps whose pose is verified in it,
+    /// and each (re)localisation prints a line with the sensor time it took.
+    #[arg(long, value_name = "MAP", visible_alias = "localize")]
+    pub localise: Option<PathBuf>,
+    /// Localisation: where the robot's `base_link` is believed to be in the map, as
+    /// `x,y,yaw` (m, m, rad), narrowing the first relocalisation to the keyframes near it.
+    #[arg(
+        long,
+        value_name = "X,Y,YAW",
+        value_delimiter = ',',
+        allow_negative_numbers = true
+    )]
+    pub initial_pose: Option<Vec<f64>>,
     /// Take the odometry, back-end, pipeline and mounting parameters from a daemon
     /// configuration (as `glintd run --config`), so a capture replays with what the robot runs.
     /// `--no-intensity` and `--no-loop` still apply on top.
@@ -106,9 +125,38 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     } else {
         None
     };
+    if args.save_map.is_some() && args.localise.is_some() {
+        anyhow::bail!(
+            "--save-map with --localise: extending a saved map is not supported yet; map the \
+             new area in a run of its own"
+        );
+    }
+    if args.save_map.is_some() && !loop_closure {
+        anyhow::bail!("--save-map needs the back end: leave out --no-loop");
+    }
+    let base_from_sensor = daemon.mounting.base_from_sensor();
+    let localise = match &args.localise {
+        Some(path) => Some(
+            glint_map::load(path)
+                .with_context(|| format!("cannot localise in {}", path.display()))?,
+        ),
+        None => None,
+    };
+    let hint = args
+        .initial_pose
+        .as_deref()
+        .map(|p| crate::config::initial_pose(p, &base_from_sensor))
+        .transpose()?;
     let stop = Arc::new(AtomicBool::new(false));
     crate::signals::stop_on_signals(&stop)?;
     let summary = pipeline::run(Options {
+        site_map: SiteMapOptions {
+            save: args.save_map.clone(),
+            autosave: None,
+            localise,
+            hint,
+            localiser: daemon.localiser.clone(),
+        },
         input: Input::Capture {
             path: args.capture.clone(),
             ports: args.sensor.ports(),
@@ -117,7 +165,7 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         stream: args.sensor.stream_config()?,
         odometry: config,
         queue: 2,
-        base_from_sensor: daemon.mounting.base_from_sensor(),
+        base_from_sensor,
         backend: loop_closure.then(|| daemon.backend.clone()),
         odom_trajectory: args.odom_trajectory.clone(),
         publish: (!args.no_publish).then(|| PublishOptions {
@@ -250,6 +298,27 @@ pub fn run(args: ReplayArgs) -> Result<()> {
                 );
             }
         }
+    }
+    if args.localise.is_some() {
+        say!(
+            "localisation: {} of {n} sweeps verified in the map; {} relocalisation(s), lost {} time(s)",
+            summary.map_verified,
+            summary.relocalisations.len(),
+            summary.map_lost.len()
+        );
+        for r in &summary.relocalisations {
+            say!(
+                "relocalised at t = {:.3} s after {:.2} s of sensor data",
+                r.time_ns as f64 * 1e-9,
+                r.searched_s
+            );
+        }
+        for t in &summary.map_lost {
+            say!("lost in the map at t = {:.3} s", *t as f64 * 1e-9);
+        }
+    }
+    if let Some((path, bytes)) = &summary.site_map_saved {
+        say!("site map written to {} ({bytes} bytes)", path.display());
     }
     for e in &summary.output_errors {
         say!("output not written: {e}");

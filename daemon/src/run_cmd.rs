@@ -12,8 +12,8 @@ use anyhow::{anyhow, Result};
 use clap::Args;
 use sd_notify::NotifyState;
 
-use crate::config::DaemonConfig;
-use crate::pipeline::{self, Input, Options, PublishOptions};
+use crate::config::{DaemonConfig, SiteMapMode};
+use crate::pipeline::{self, Input, Options, PublishOptions, SiteMapOptions};
 
 /// Arguments of `glintd run`.
 #[derive(Args, Debug)]
@@ -41,6 +41,35 @@ pub fn run(args: RunArgs) -> Result<()> {
         config.ipc.domain = domain;
     }
     let stream = config.stream_config()?;
+    let site = &config.site_map;
+    let base_from_sensor = config.mounting.base_from_sensor();
+    let mut site_map = SiteMapOptions {
+        localiser: config.localiser.clone(),
+        ..SiteMapOptions::default()
+    };
+    match (site.mode, &site.path) {
+        (SiteMapMode::Mapping, Some(path)) => {
+            site_map.save = Some(path.clone());
+            site_map.autosave =
+                (site.autosave_s > 0.0).then(|| Duration::from_secs_f64(site.autosave_s));
+        }
+        (SiteMapMode::Localisation, Some(path)) => {
+            // A map that cannot be read is a configuration error: the robot must not drive on
+            // poses in a frame of its own making.
+            let map = glint_map::load(path).map_err(|e| anyhow!("site_map.path: {e}"))?;
+            tracing::info!(
+                path = %path.display(),
+                keyframes = map.keyframes.len(),
+                "localising in the saved site map"
+            );
+            site_map.localise = Some(map);
+            site_map.hint = site
+                .initial_pose
+                .map(|p| crate::config::initial_pose(&p, &base_from_sensor))
+                .transpose()?;
+        }
+        _ => {}
+    }
     if args.check {
         say!("configuration ok");
         return Ok(());
@@ -56,6 +85,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         );
     }
     let summary = pipeline::run(Options {
+        site_map,
         input: Input::Live {
             udp: config.udp_config(),
             silence: Duration::from_secs_f64(config.sensor.silence_timeout_s),
@@ -63,7 +93,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         stream,
         odometry: config.odometry.clone(),
         queue: config.pipeline.queue_sweeps,
-        base_from_sensor: config.mounting.base_from_sensor(),
+        base_from_sensor,
         backend: config.pipeline.loop_closure.then(|| config.backend.clone()),
         odom_trajectory: config.output.odom_trajectory.clone(),
         publish: config.ipc.publish.then(|| PublishOptions {

@@ -68,6 +68,7 @@ FLAGS = [
     (1 << 4, "LOOP_CLOSED"),
     (1 << 5, "PREDICTED"),
     (1 << 6, "SENSOR_SILENT"),
+    (1 << 7, "RELOCALISING"),
 ]
 
 

@@ -37,17 +37,22 @@ impl StatusFlags {
     pub const DEGENERATE: Self = Self(1 << 2);
     /// Bit 3: tracking is lost; the pose is the last good one, not the robot's current pose.
     pub const LOST: Self = Self(1 << 3);
-    /// Bit 4: a loop closure corrected the map frame; this `map` pose may jump relative to the
-    /// previous one. Set on the first `map` pose after the correction only.
+    /// Bit 4: the `map` pose jumped: a loop closure corrected the map frame, or (localising in
+    /// a saved map) this is the first verified pose after a (re)localisation. Set on the first
+    /// `map` pose after the jump only.
     pub const LOOP_CLOSED: Self = Self(1 << 4);
     /// Bit 5: the pose is extrapolated (constant velocity) rather than measured; always set on
     /// the `predicted` stream.
     pub const PREDICTED: Self = Self(1 << 5);
     /// Bit 6: no packets arrived from the sensor recently (cable, power or network).
     pub const SENSOR_SILENT: Self = Self(1 << 6);
+    /// Bit 7: localising in a saved map, and the pose is not verified in it (at boot, after
+    /// tracking was lost, after a kidnap): the `map` pose is not to be steered by. Never set
+    /// together with `TRACKING` on `map`.
+    pub const RELOCALISING: Self = Self(1 << 7);
 
     /// All bits this version defines.
-    pub const KNOWN: Self = Self((1 << 7) - 1);
+    pub const KNOWN: Self = Self((1 << 8) - 1);
 
     /// The raw bits, as on the wire.
     pub const fn bits(self) -> u32 {
@@ -92,7 +97,7 @@ impl BitOrAssign for StatusFlags {
 impl fmt::Display for StatusFlags {
     /// `TRACKING|LOOP_CLOSED`, `-` for none; unknown bits as hex so nothing is hidden.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        const NAMES: [(StatusFlags, &str); 7] = [
+        const NAMES: [(StatusFlags, &str); 8] = [
             (StatusFlags::INITIALISING, "INITIALISING"),
             (StatusFlags::TRACKING, "TRACKING"),
             (StatusFlags::DEGENERATE, "DEGENERATE"),
@@ -100,6 +105,7 @@ impl fmt::Display for StatusFlags {
             (StatusFlags::LOOP_CLOSED, "LOOP_CLOSED"),
             (StatusFlags::PREDICTED, "PREDICTED"),
             (StatusFlags::SENSOR_SILENT, "SENSOR_SILENT"),
+            (StatusFlags::RELOCALISING, "RELOCALISING"),
         ];
         let mut first = true;
         let mut sep = |f: &mut fmt::Formatter<'_>| {
@@ -325,7 +331,7 @@ mod tests {
         assert!(!f.contains(StatusFlags::TRACKING | StatusFlags::LOST));
         assert!(f.intersects(StatusFlags::TRACKING | StatusFlags::LOST));
         assert_eq!(f.without(StatusFlags::DEGENERATE), StatusFlags::TRACKING);
-        assert_eq!(StatusFlags::KNOWN.bits(), 0x7f);
+        assert_eq!(StatusFlags::KNOWN.bits(), 0xff);
     }
 
     #[test]

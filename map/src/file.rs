@@ -181,11 +181,11 @@ fn array(bytes: &[u8]) -> [u8; 4] {
     a
 }
 
-fn io(op: &'static str, path: &Path, source: std::io::Error) -> MapError {
+fn io(op: &'static str, path: &Path, error: std::io::Error) -> MapError {
     MapError::Io {
         op,
         path: path.to_path_buf(),
-        source,
+        error,
     }
 }
 

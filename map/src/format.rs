@@ -265,6 +265,9 @@ pub fn check(map: &SiteMap) -> Result<(), MapError> {
         )));
     }
     let shape = descriptor_shape(map);
+    if u32::try_from(shape.0).is_err() || u32::try_from(shape.1).is_err() {
+        return Err(malformed("a descriptor of over 2³² sectors or rings"));
+    }
     for (i, k) in map.keyframes.iter().enumerate() {
         if !pose_is_valid(&k.pose) || !pose_is_valid(&k.keyframe.odom_pose) {
             return Err(malformed(format!(

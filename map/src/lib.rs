@@ -53,15 +53,16 @@ pub enum MapError {
     /// is written.
     #[error("malformed: {0}")]
     Malformed(String),
-    /// A file operation failed.
-    #[error("cannot {op} {}: {source}", path.display())]
+    /// A file operation failed. (The system's error is in the message, so it is not also
+    /// given as the source: an error chain prints it once.)
+    #[error("cannot {op} {}: {error}", path.display())]
     Io {
         /// What was being done: "read", "write", "replace"…
         op: &'static str,
         /// The file (or directory) it was done to.
         path: PathBuf,
         /// The system's error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// One of the errors above, met in a file.
     #[error("{}: {error}", path.display())]

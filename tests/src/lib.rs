@@ -1,15 +1,16 @@
 //! What the end-to-end tests in `tests/` share: the simulator's packets through our driver into
 //! the scans the front end takes, and the simulator's ground truth as TUM-style poses.
 
-use glint_core::scan::{Scan, ScanPoint};
+use glint_core::scan::Scan;
 use glint_core::trajectory::StampedPose;
 use glint_driver::{SensorStream, StreamConfig};
 use glint_sim::simulation::PacketKind;
 use glint_sim::Simulation;
+use glintd::pipeline::scan_of;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
 /// Feeds every packet of `sim` through a fresh driver stream and calls `on_scan` with each
-/// sweep (16 rings, stamped with its last return) in order.
+/// sweep, converted as the daemon converts it, in order.
 pub fn for_each_scan(sim: &mut Simulation, mut on_scan: impl FnMut(&Scan<'_>)) {
     let mut stream = SensorStream::new(StreamConfig::default());
     let mut points = Vec::new();
@@ -22,21 +23,9 @@ pub fn for_each_scan(sim: &mut Simulation, mut on_scan: impl FnMut(&Scan<'_>)) {
         result.expect("simulated packets are valid");
         sweeps.extend(std::iter::from_fn(|| stream.take_sweep()));
         for sweep in sweeps.drain(..) {
-            let Some(reference_ns) = sweep.points.last().map(|p| p.time_ns) else {
-                continue;
-            };
-            points.clear();
-            points.extend(sweep.points.iter().map(|p| ScanPoint {
-                position: [p.x, p.y, p.z],
-                time_ns: p.time_ns,
-                reflectivity: p.reflectivity,
-                ring: p.ring,
-            }));
-            on_scan(&Scan {
-                points: &points,
-                rings: 16,
-                reference_ns,
-            });
+            if let Some(scan) = scan_of(&sweep, &mut points) {
+                on_scan(&scan);
+            }
         }
     }
 }

@@ -6,7 +6,8 @@ use glint_core::features::SweepFeatures;
 use glint_core::metrics::{
     associate, ate_rmse, drift_along_axis, relative_errors, WAREHOUSE_LENGTHS,
 };
-use glint_core::odometry::{FrontEnd, Odometry, TrackingStatus};
+use glint_core::odometry::{FrontEnd, TrackingStatus};
+use glint_core::tracker::Tracker;
 use glint_core::trajectory::StampedPose;
 use glint_sim::{Scenario, SimConfig, Simulation};
 use glint_tests::{dense_groundtruth, for_each_scan, sensor_pose};
@@ -31,14 +32,14 @@ fn run(scenario: Scenario, seed: u64, seconds: f64, config: &OdometryConfig) -> 
     };
     let mut sim = Simulation::new(&sim_config).expect("the scenario builds");
     let mut front_end = FrontEnd::new(config);
-    let mut odometry = Odometry::new(config);
+    let mut tracker = Tracker::new(config, None);
     let mut features = SweepFeatures::default();
     let mut estimates = Vec::new();
     let mut statuses = Vec::new();
     let mut covariances = Vec::new();
     for_each_scan(&mut sim, |scan| {
         front_end.process(scan, &mut features);
-        let e = odometry.register(&features, |_| {});
+        let e = tracker.track(&features, None, |_| {}).estimate;
         estimates.push(StampedPose {
             time_ns: e.time_ns,
             pose: e.pose,

@@ -5,16 +5,15 @@
 //! here, not tuned on.
 
 use glint_core::backend::config::BackEndConfig;
-use glint_core::backend::keyframe::{Keyframe, KeyframeSelector};
 use glint_core::backend::{BackEnd, BackEndStats};
 use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
 use glint_core::metrics::{self, associate, ate_rmse};
-use glint_core::odometry::{FrontEnd, Odometry, TrackingStatus};
+use glint_core::odometry::FrontEnd;
+use glint_core::tracker::Tracker;
 use glint_core::trajectory::StampedPose;
 use glint_sim::{Scenario, SimConfig, Simulation};
 use glint_tests::{dense_groundtruth, for_each_scan, sensor_pose};
-use nalgebra::Isometry3;
 
 struct Run {
     odometry: Vec<StampedPose>,
@@ -50,28 +49,18 @@ fn run(scenario: Scenario, seed: u64, seconds: f64, backend_config: &BackEndConf
     let config = OdometryConfig::default();
     let mut sim = Simulation::new(&sim_config).expect("the scenario builds");
     let mut front_end = FrontEnd::new(&config);
-    let mut odometry = Odometry::new(&config);
-    let mut selector = KeyframeSelector::new();
+    let mut tracker = Tracker::new(&config, Some(&backend_config.keyframes));
     let mut backend = BackEnd::new(backend_config);
     let mut features = SweepFeatures::default();
     let mut estimates = Vec::new();
     for_each_scan(&mut sim, |scan| {
         front_end.process(scan, &mut features);
-        let e = odometry.register(&features, |_| {});
+        let tracked = tracker.track(&features, None, |_| {});
         estimates.push(StampedPose {
-            time_ns: e.time_ns,
-            pose: e.pose,
+            time_ns: tracked.estimate.time_ns,
+            pose: tracked.estimate.pose,
         });
-        if e.status != TrackingStatus::Lost
-            && selector.is_keyframe(e.time_ns, &e.pose, &backend_config.keyframes)
-        {
-            let keyframe = Keyframe::new(
-                e.time_ns,
-                e.pose,
-                odometry.deskewed_input(),
-                odometry.map_points(&features, &Isometry3::identity()),
-                &backend_config.keyframes,
-            );
+        if let Some(keyframe) = tracked.keyframe {
             backend.add_keyframe(keyframe, |_| {});
         }
     });

@@ -91,6 +91,17 @@ pub struct BackEndStats {
     pub on_floor: usize,
 }
 
+/// What a site map records of the run that made it (see [`BackEnd::site_map`]).
+#[derive(Debug, Clone)]
+pub struct SiteMapHeader {
+    /// When, ns since the Unix epoch.
+    pub created_ns: u64,
+    /// The sensor, e.g. "VLP-16".
+    pub sensor_model: String,
+    /// The mapping robot's mounting, `base_link` ← sensor.
+    pub base_from_sensor: Isometry3<f64>,
+}
+
 /// Steps 7–9 over a growing set of keyframes. See the module docs.
 #[derive(Debug, Clone)]
 pub struct BackEnd {
@@ -437,6 +448,63 @@ impl BackEnd {
             v.accepted = false;
         }
         v
+    }
+
+    /// The site map's frame from the run's world (the first sensor pose's frame): the mapping
+    /// robot's first `base_link` pose (`base_from_sensor` is its mounting), levelled so that its
+    /// z axis is the floor's normal when the run saw a floor. A map anchored to one sweep's
+    /// attitude would carry that sweep's tilt (vibration, a bump) to every robot localising
+    /// in it: 1° is 17 cm of height 10 m away.
+    pub fn site_from_world(&self, base_from_sensor: &Isometry3<f64>) -> Isometry3<f64> {
+        let Some(floor) = self.floor else {
+            return *base_from_sensor;
+        };
+        let up = base_from_sensor.rotation * floor.normal;
+        let up = if up.z < 0.0 { -up } else { up };
+        let level = nalgebra::UnitQuaternion::rotation_between(&up, &Vector3::z())
+            .unwrap_or_else(nalgebra::UnitQuaternion::identity);
+        Isometry3::from_parts(nalgebra::Translation3::identity(), level) * base_from_sensor
+    }
+
+    /// The run as a site map ([`crate::site_map`]): every keyframe at its optimised pose
+    /// turned into the site's frame by `site_from_world` (the mapping robot's mounting, so the
+    /// map frame is its first `base_link` pose), with its descriptor, the intensity map rebuilt
+    /// from the held keyframes' returns at those poses, and the graph's edges (relative
+    /// measurements, the same in any frame).
+    pub fn site_map(
+        &self,
+        site_from_world: &Isometry3<f64>,
+        intensity: &crate::config::IntensityMapConfig,
+        header: SiteMapHeader,
+    ) -> crate::site_map::SiteMap {
+        let mut map = crate::intensity_map::IntensityMap::new(intensity);
+        let keyframes = self
+            .keyframes
+            .iter()
+            .zip(&self.graph.poses)
+            .zip(&self.descriptors)
+            .map(|((keyframe, pose), descriptor)| {
+                let pose = site_from_world * pose;
+                let placed = pose.cast::<f32>();
+                for c in &keyframe.cloud {
+                    let p = placed * nalgebra::Point3::from(c.position);
+                    map.insert(&p.coords, c.eta);
+                }
+                crate::site_map::SiteKeyframe {
+                    pose,
+                    keyframe: keyframe.clone(),
+                    descriptor: descriptor.clone(),
+                }
+            })
+            .collect();
+        crate::site_map::SiteMap {
+            created_ns: header.created_ns,
+            sensor_model: header.sensor_model,
+            base_from_sensor: header.base_from_sensor,
+            keyframes,
+            intensity: map,
+            edges: self.graph.edges.clone(),
+        }
     }
 
     /// The final trajectory: each sweep's odometry pose corrected through the latest keyframe
