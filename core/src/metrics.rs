@@ -1,6 +1,8 @@
 //! How far an estimated trajectory is from the ground truth: association by time, the absolute
 //! trajectory error after a rigid alignment (the number `evo_ape tum GT EST -a` reports), and
-//! the KITTI-style relative error over stretches of path (drift in % and °/m).
+//! the KITTI-style relative error over stretches of path (drift in % and °/m); and, for a run
+//! localising in a saved map, the errors in the map's own frame without alignment, the map
+//! frame anchored to the ground truth through the mapping run's first pose.
 
 use std::fmt;
 
@@ -10,6 +12,19 @@ use crate::trajectory::{interpolate, rotation_vector, StampedPose};
 
 /// An estimated pose and the ground-truth pose at the same time, in that order.
 pub type PosePair = (Isometry3<f64>, Isometry3<f64>);
+
+/// A time interval the ground truth jumps across (a kidnapped robot): `before_ns` is its last
+/// pose before the jump, `after_ns` its first after. Nothing may be interpolated across it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Jump {
+    pub before_ns: u64,
+    pub after_ns: u64,
+}
+
+/// Position error above which a localised pose counts as wrong, m.
+pub const WRONG_POSITION_M: f64 = 0.5;
+/// Heading error above which a localised pose counts as wrong, degrees.
+pub const WRONG_YAW_DEG: f64 = 5.0;
 
 /// Segment lengths (m) for the relative error: KITTI uses 100–800 m, far longer than a
 /// warehouse aisle, so these span one aisle to a few.
@@ -23,6 +38,117 @@ pub fn associate(estimate: &[StampedPose], groundtruth: &[StampedPose]) -> Vec<P
         .iter()
         .filter_map(|e| interpolate(groundtruth, e.time_ns).map(|g| (e.pose, g)))
         .collect()
+}
+
+/// The ground truth at `time_ns` unless that needs the poses on both sides of a jump: `None`
+/// strictly inside a jump, when the two poses that bracket the time lie on either side of one,
+/// or outside the ground truth's span.
+pub fn interpolate_without_jumps(
+    groundtruth: &[StampedPose],
+    time_ns: u64,
+    jumps: &[Jump],
+) -> Option<Isometry3<f64>> {
+    if jumps
+        .iter()
+        .any(|j| j.before_ns < time_ns && time_ns < j.after_ns)
+    {
+        return None;
+    }
+    let idx = groundtruth.partition_point(|p| p.time_ns < time_ns);
+    let later = groundtruth.get(idx)?;
+    if later.time_ns > time_ns {
+        let earlier = groundtruth.get(idx.checked_sub(1)?)?;
+        let spans = |j: &Jump| earlier.time_ns <= j.before_ns && later.time_ns >= j.after_ns;
+        if jumps.iter().any(spans) {
+            return None;
+        }
+    }
+    interpolate(groundtruth, time_ns)
+}
+
+/// The map frame in the scene frame, `scene←map = GT_map(t0) · EST_map(t0)⁻¹`, where t0 is the
+/// time of the mapping run's first estimated pose, `EST_map(t0)` that pose and `GT_map(t0)` the
+/// mapping run's ground truth there. `None` when the estimate is empty or t0 has no ground
+/// truth (outside it, or inside a jump).
+pub fn anchor_map_frame(
+    map_estimate: &[StampedPose],
+    map_groundtruth: &[StampedPose],
+    jumps: &[Jump],
+) -> Option<Isometry3<f64>> {
+    let first = map_estimate.first()?;
+    let truth = interpolate_without_jumps(map_groundtruth, first.time_ns, jumps)?;
+    Some(truth * first.pose.inverse())
+}
+
+/// Errors of poses in a fixed frame, without alignment.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FixedFrameReport {
+    /// Poses compared.
+    pub poses: usize,
+    /// Estimated poses left out because their time is inside a jump or its ground truth would
+    /// be interpolated across one.
+    pub in_jumps: usize,
+    /// Root mean square of the position errors, m.
+    pub position_rmse: f64,
+    /// Root mean square of the heading (yaw) errors, degrees.
+    pub yaw_rmse_deg: f64,
+    /// The largest position error, m.
+    pub max_position: f64,
+    /// Poses with a position error above [`WRONG_POSITION_M`] or a heading error above
+    /// [`WRONG_YAW_DEG`].
+    pub wrong_poses: usize,
+}
+
+/// Every estimated pose mapped into the scene frame by `scene_from_map` and compared with the
+/// ground truth at its own time (interpolated, never across a jump); no alignment. `None` when
+/// no pose can be compared.
+pub fn fixed_frame_errors(
+    estimate: &[StampedPose],
+    groundtruth: &[StampedPose],
+    scene_from_map: &Isometry3<f64>,
+    jumps: &[Jump],
+) -> Option<FixedFrameReport> {
+    let (mut poses, mut in_jumps, mut wrong) = (0, 0, 0);
+    let (mut sum_position, mut sum_yaw, mut max_position) = (0.0, 0.0, 0.0f64);
+    for e in estimate {
+        let Some(truth) = interpolate_without_jumps(groundtruth, e.time_ns, jumps) else {
+            let inside = interpolate(groundtruth, e.time_ns).is_some();
+            in_jumps += usize::from(inside);
+            continue;
+        };
+        let pose = scene_from_map * e.pose;
+        let position = (pose.translation.vector - truth.translation.vector).norm();
+        let yaw = yaw_difference(&pose.rotation, &truth.rotation).to_degrees();
+        poses += 1;
+        sum_position += position * position;
+        sum_yaw += yaw * yaw;
+        max_position = max_position.max(position);
+        wrong += usize::from(position > WRONG_POSITION_M || yaw.abs() > WRONG_YAW_DEG);
+    }
+    (poses > 0).then(|| FixedFrameReport {
+        poses,
+        in_jumps,
+        position_rmse: (sum_position / poses as f64).sqrt(),
+        yaw_rmse_deg: (sum_yaw / poses as f64).sqrt(),
+        max_position,
+        wrong_poses: wrong,
+    })
+}
+
+/// The heading (rotation about the scene's z axis of the forward axis) of `a` minus that of
+/// `b`, in (−π, π].
+pub fn yaw_difference(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>) -> f64 {
+    let heading = |q: &UnitQuaternion<f64>| {
+        let x = q * Vector3::x();
+        x.y.atan2(x.x)
+    };
+    let d = heading(a) - heading(b);
+    let wrapped = d.rem_euclid(std::f64::consts::TAU);
+    if wrapped > std::f64::consts::PI {
+        wrapped - std::f64::consts::TAU
+    } else {
+        wrapped
+    }
 }
 
 /// The rigid motion `T` minimising Σ|T·est_k − gt_k|² (Umeyama without scale). Points past the
@@ -414,6 +540,128 @@ mod tests {
             [(1.5e9, 0.5), (2.25e9, 1.25), (3e9, 2.0)],
             "the first and last estimates are outside the ground truth"
         );
+    }
+
+    fn stamped(poses: &[(u64, Isometry3<f64>)]) -> Vec<StampedPose> {
+        poses
+            .iter()
+            .map(|&(time_ns, pose)| StampedPose { time_ns, pose })
+            .collect()
+    }
+
+    #[test]
+    fn the_map_frame_is_anchored_through_the_mapping_runs_first_pose() {
+        let s = 1_000_000_000;
+        // The mapping run starts at (3, 4) heading 90° in the scene; its estimate starts at the
+        // origin heading 0 (its own map frame), so scene←map turns by 90° and moves by (3, 4).
+        let gt = stamped(&[
+            (s, pose([3.0, 3.0, 0.0], PI / 2.0)),
+            (3 * s, pose([3.0, 5.0, 0.0], PI / 2.0)),
+        ]);
+        let est = stamped(&[(2 * s, pose([0.0, 0.0, 0.0], 0.0))]);
+        let anchor = anchor_map_frame(&est, &gt, &[]).expect("anchored");
+        let expected = pose([3.0, 4.0, 0.0], PI / 2.0);
+        assert!((anchor.translation.vector - expected.translation.vector).norm() < 1e-12);
+        assert!(angle_between(&anchor.rotation, &expected.rotation) < 1e-12);
+        // A map point 1 m ahead of the start is 1 m further along +y in the scene.
+        let p = anchor.transform_point(&Point3::new(1.0, 0.0, 0.0));
+        assert!((p.coords - Vector3::new(3.0, 5.0, 0.0)).norm() < 1e-12);
+        assert_eq!(anchor_map_frame(&[], &gt, &[]), None);
+        let outside = stamped(&[(5 * s, pose([0.0; 3], 0.0))]);
+        assert_eq!(anchor_map_frame(&outside, &gt, &[]), None);
+        let jump = Jump {
+            before_ns: s,
+            after_ns: 3 * s,
+        };
+        assert_eq!(anchor_map_frame(&est, &gt, &[jump]), None);
+    }
+
+    #[test]
+    fn fixed_frame_errors_are_not_aligned_away() {
+        let s = 100_000_000;
+        let gt: Vec<StampedPose> = (0..=100)
+            .map(|k| StampedPose {
+                time_ns: k * s,
+                pose: pose([0.1 * k as f64, 0.0, 0.0], 0.0),
+            })
+            .collect();
+        // The estimate is in a map frame moved by (−1, 2) and turned by 30° from the scene;
+        // mapped back it is exact except 10 poses 0.6 m off sideways and 10 turned by 6°.
+        let scene_from_map = pose([1.0, -2.0, 0.0], PI / 6.0);
+        let est: Vec<StampedPose> = gt
+            .iter()
+            .enumerate()
+            .map(|(k, g)| {
+                let mut p = g.pose;
+                if (10..20).contains(&k) {
+                    p = Isometry3::translation(0.0, 0.6, 0.0) * p;
+                }
+                if (50..60).contains(&k) {
+                    p *= Isometry3::rotation(Vector3::z() * 6f64.to_radians());
+                }
+                StampedPose {
+                    time_ns: g.time_ns,
+                    pose: scene_from_map.inverse() * p,
+                }
+            })
+            .collect();
+        let r = fixed_frame_errors(&est, &gt, &scene_from_map, &[]).expect("poses");
+        assert_eq!((r.poses, r.in_jumps), (101, 0));
+        assert!(
+            (r.position_rmse - (10.0 * 0.36f64 / 101.0).sqrt()).abs() < 1e-9,
+            "{r:?}"
+        );
+        assert!(
+            (r.yaw_rmse_deg - (10.0 * 36.0f64 / 101.0).sqrt()).abs() < 1e-9,
+            "{r:?}"
+        );
+        assert!((r.max_position - 0.6).abs() < 1e-9);
+        assert_eq!(r.wrong_poses, 20);
+        // The same estimate without the map frame is off by metres: nothing is aligned.
+        let raw = fixed_frame_errors(&est, &gt, &Isometry3::identity(), &[]).expect("poses");
+        assert!(raw.position_rmse > 1.0 && raw.wrong_poses == 101, "{raw:?}");
+    }
+
+    #[test]
+    fn fixed_frame_errors_skip_poses_inside_or_across_a_jump() {
+        let s = 100_000_000;
+        // The truth jumps from x = 1 to x = 20 between its poses at 1.0 s and 1.1 s.
+        let gt: Vec<StampedPose> = (0..=20)
+            .map(|k| StampedPose {
+                time_ns: k * s,
+                pose: pose([if k <= 10 { 0.1 * k as f64 } else { 20.0 }, 0.0, 0.0], 0.0),
+            })
+            .collect();
+        let jump = Jump {
+            before_ns: 10 * s,
+            after_ns: 11 * s,
+        };
+        let est: Vec<StampedPose> = [5 * s, 10 * s, 10 * s + s / 2, 11 * s, 15 * s]
+            .iter()
+            .map(|&t| StampedPose {
+                time_ns: t,
+                pose: interpolate(&gt, t).expect("inside"),
+            })
+            .collect();
+        let r = fixed_frame_errors(&est, &gt, &Isometry3::identity(), &[jump]).expect("poses");
+        assert_eq!((r.poses, r.in_jumps), (4, 1));
+        assert!(r.max_position < 1e-12, "{r:?}");
+        // A sparser ground truth whose poses straddle the jump is not interpolated across it.
+        let sparse: Vec<StampedPose> = gt.iter().step_by(4).copied().collect();
+        assert_eq!(interpolate_without_jumps(&sparse, 10 * s, &[jump]), None);
+        assert!(interpolate_without_jumps(&sparse, 5 * s, &[jump]).is_some());
+        assert!(
+            interpolate(&sparse, 10 * s).is_some(),
+            "plain interpolation would"
+        );
+    }
+
+    #[test]
+    fn yaw_differences_wrap_to_half_a_turn() {
+        let q = |yaw: f64| UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw);
+        assert!((yaw_difference(&q(3.0), &q(-3.0)) - (6.0 - 2.0 * PI)).abs() < 1e-12);
+        assert!((yaw_difference(&q(-0.1), &q(0.2)) + 0.3).abs() < 1e-12);
+        assert!(yaw_difference(&q(1.0), &q(1.0)).abs() < 1e-12);
     }
 
     #[test]

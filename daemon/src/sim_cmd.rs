@@ -1,7 +1,9 @@
 //! `glintd sim`: the virtual VLP-16 from the command line. Writes a run's capture, ground truth
 //! and scene description (`--out DIR`), streams the same packets live over UDP at real-time
-//! pace (`--udp HOST`), or prints a scenario's layout (`--describe`). Flags are parsed here and
-//! validated once into a `glint_sim::SimConfig`; the simulation itself lives in `glint-sim`.
+//! pace (`--udp HOST`), or prints a scenario's layout (`--describe`). Runs of one scene may
+//! differ in route, direction, start, sensor unit, goods and movers, and may include a kidnap.
+//! Flags are parsed here and validated once into a `glint_sim::SimConfig`; the simulation
+//! itself lives in `glint-sim`.
 
 use std::path::PathBuf;
 
@@ -81,6 +83,45 @@ pub struct SimArgs {
     /// Destination port of position packets when streaming.
     #[arg(long, default_value_t = 8308)]
     pub position_port: u16,
+    /// Drive another closed route through the same scene (same layout, same frame), chosen by
+    /// this seed. Default: the scenario's own route.
+    #[arg(long, value_name = "M")]
+    pub path_seed: Option<u64>,
+    /// Drive the route in the opposite direction.
+    #[arg(long)]
+    pub reverse: bool,
+    /// Start this fraction of the lap length along the route, in [0, 1).
+    #[arg(
+        long,
+        value_name = "F",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    pub start_fraction: f64,
+    /// Teleport the robot T s after the start (at the end of the sweep in progress) to a place
+    /// on the route at least 10 m away; writes kidnaps.txt beside the ground truth.
+    #[arg(long, value_name = "T", allow_negative_numbers = true)]
+    pub kidnap: Option<f64>,
+    /// Another sensor unit: per-laser gains, start angle and noise drawn from this seed instead
+    /// of --seed.
+    #[arg(long, value_name = "U")]
+    pub unit_seed: Option<u64>,
+    /// Remove or shift (0.3–1.5 m, onto free floor) this fraction of the movable objects
+    /// (pallets and loads, floor stacks, parked vehicles), in [0, 1].
+    #[arg(
+        long,
+        value_name = "FRAC",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    pub change: f64,
+    /// Decides which movable objects --change moves or removes, and how.
+    #[arg(long, value_name = "C", default_value_t = 1)]
+    pub change_seed: u64,
+    /// Number of moving occluders (pedestrians, forklifts, cars): fewer than the scenario's
+    /// keeps the first ones, more adds copies on their lanes. Default: the scenario's.
+    #[arg(long, value_name = "N")]
+    pub movers: Option<usize>,
 }
 
 impl SimArgs {
@@ -103,6 +144,14 @@ impl SimArgs {
             laser_gain_bias: self.laser_gain_bias,
             packet_loss: self.packet_loss,
             start_time_ns,
+            path_seed: self.path_seed,
+            reverse: self.reverse,
+            start_fraction: self.start_fraction,
+            kidnap_s: self.kidnap,
+            unit_seed: self.unit_seed,
+            change: self.change,
+            change_seed: self.change_seed,
+            movers: self.movers,
             ..SimConfig::default()
         };
         config.validate()?;
@@ -113,9 +162,10 @@ impl SimArgs {
 /// Runs `glintd sim`.
 pub fn run(args: SimArgs) -> Result<()> {
     if args.describe {
-        let scenario: Scenario = args.scenario.parse()?;
-        let text = scenarios::describe(scenario, args.seed)
-            .with_context(|| format!("describing {scenario}"))?;
+        let config = args.config()?;
+        let text = scenarios::build_run(&config)
+            .with_context(|| format!("describing {}", config.scenario))?
+            .description;
         say!("{}", text.trim_end());
         return Ok(());
     }
@@ -147,6 +197,9 @@ pub fn run(args: SimArgs) -> Result<()> {
             "wrote {0}/scan.pcap, {0}/groundtruth.tum, {0}/groundtruth_dense.tum, {0}/scene.json",
             dir.display()
         );
+        if config.kidnap_s.is_some() {
+            say!("wrote {}/kidnaps.txt", dir.display());
+        }
     }
     Ok(())
 }
@@ -178,6 +231,50 @@ mod tests {
         let c = a.config().unwrap();
         assert_eq!(c.return_mode, ReturnMode::Strongest);
         assert!(c.noise && c.start_time_ns.is_none());
+        assert!(!c.is_variant(), "no flag, no variation of the scene");
+    }
+
+    #[test]
+    fn run_variation_flags_reach_the_config() {
+        let c = parse(&[
+            "warehouse",
+            "--seconds",
+            "30",
+            "--path-seed",
+            "4",
+            "--reverse",
+            "--start-fraction",
+            "0.25",
+            "--kidnap",
+            "12.5",
+            "--unit-seed",
+            "9",
+            "--change",
+            "0.2",
+            "--change-seed",
+            "5",
+            "--movers",
+            "3",
+        ])
+        .config()
+        .unwrap();
+        assert_eq!(c.path_seed, Some(4));
+        assert!(c.reverse);
+        assert_eq!(c.start_fraction, 0.25);
+        assert_eq!(c.kidnap_s, Some(12.5));
+        assert_eq!(c.unit_seed, Some(9));
+        assert_eq!((c.change, c.change_seed), (0.2, 5));
+        assert_eq!(c.movers, Some(3));
+        for bad in [
+            &["warehouse", "--start-fraction", "1"][..],
+            &["warehouse", "--start-fraction", "-0.1"],
+            &["warehouse", "--seconds", "10", "--kidnap", "10"],
+            &["warehouse", "--kidnap", "-1"],
+            &["warehouse", "--change", "1.5"],
+            &["warehouse", "--movers", "1000"],
+        ] {
+            assert!(parse(bad).config().is_err(), "{bad:?}");
+        }
     }
 
     #[test]

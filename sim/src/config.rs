@@ -2,7 +2,9 @@
 //! [`SimConfig`], and the start-time parser for `--start-time`.
 //!
 //! Every random choice derives from the seed through separate ChaCha streams (layout, noise,
-//! packet loss, vibration), so changing the noise settings never moves a rack.
+//! packet loss, vibration), so changing the noise settings never moves a rack. The variations
+//! of one scene (another route, another sensor unit, changed goods, a kidnap) draw from streams
+//! of their own seeds, so none of them moves anything else.
 
 use std::fmt;
 use std::str::FromStr;
@@ -88,7 +90,33 @@ pub enum ConfigError {
         "the start time must lie between 1980 and 2079 (the range of a $GPRMC date), got {0} ns"
     )]
     StartTime(u64),
+    /// The start fraction is not in [0, 1).
+    #[error("the start fraction must be in [0, 1) of the lap, got {0}")]
+    StartFraction(f64),
+    /// The kidnap time is not inside the run with room for one more sweep after it.
+    #[error(
+        "the kidnap time must be after the start and at least {KIDNAP_MARGIN_S} s before the \
+         end of the {seconds} s run, got {time} s"
+    )]
+    KidnapTime {
+        /// The requested time, s after the start.
+        time: f64,
+        /// The run's duration, s.
+        seconds: f64,
+    },
+    /// The changed fraction is not in [0, 1].
+    #[error("the fraction of movable objects to change must be in [0, 1], got {0}")]
+    Change(f64),
+    /// More movers than the scenes are built for.
+    #[error("the number of movers must be at most {MAX_MOVERS}, got {0}")]
+    Movers(usize),
 }
+
+/// Room a kidnap needs before the end of the run, s: the sweep it lands in must end before the
+/// run does (a sweep lasts at most 0.2 s, at 300 rpm).
+pub const KIDNAP_MARGIN_S: f64 = 0.25;
+/// The most movers `--movers` may ask for.
+pub const MAX_MOVERS: usize = 16;
 
 /// Everything that defines a run. Two runs with equal configs produce identical bytes.
 #[derive(Debug, Clone, PartialEq)]
@@ -116,7 +144,28 @@ pub struct SimConfig {
     pub packet_loss: f64,
     /// Time of the first firing, ns since the Unix epoch; `None` derives it from the seed.
     pub start_time_ns: Option<u64>,
+    /// Another closed route through the same layout, chosen from this seed; `None` drives the
+    /// scenario's own route.
+    pub path_seed: Option<u64>,
+    /// Drive the route in the opposite direction.
+    pub reverse: bool,
+    /// Where on the route the run starts, as a fraction of the lap length in [0, 1).
+    pub start_fraction: f64,
+    /// Teleport the robot this many seconds after the start (at the end of the sweep in
+    /// progress) to a place on the route at least [`KIDNAP_MIN_DISTANCE_M`] away.
+    pub kidnap_s: Option<f64>,
+    /// The sensor unit (per-laser gains, start angle, noise) from this seed instead of `seed`.
+    pub unit_seed: Option<u64>,
+    /// Fraction of the movable objects (goods, pallets, parked vehicles) removed or shifted.
+    pub change: f64,
+    /// Decides which movable objects change and how.
+    pub change_seed: u64,
+    /// How many moving occluders (pedestrians, forklifts, cars); `None` keeps the scenario's.
+    pub movers: Option<usize>,
 }
+
+/// The shortest straight-line jump of a kidnap, m.
+pub const KIDNAP_MIN_DISTANCE_M: f64 = 10.0;
 
 impl Default for SimConfig {
     fn default() -> Self {
@@ -132,6 +181,14 @@ impl Default for SimConfig {
             noise: true,
             packet_loss: 0.0,
             start_time_ns: None,
+            path_seed: None,
+            reverse: false,
+            start_fraction: 0.0,
+            kidnap_s: None,
+            unit_seed: None,
+            change: 0.0,
+            change_seed: 1,
+            movers: None,
         }
     }
 }
@@ -170,7 +227,40 @@ impl SimConfig {
         if start < EARLIEST_START_S * NS_PER_S || end >= LATEST_END_S * NS_PER_S {
             return Err(ConfigError::StartTime(start));
         }
+        if !(0.0..1.0).contains(&self.start_fraction) {
+            return Err(ConfigError::StartFraction(self.start_fraction));
+        }
+        if let Some(time) = self.kidnap_s {
+            if !(time > 0.0 && time + KIDNAP_MARGIN_S <= self.seconds) {
+                return Err(ConfigError::KidnapTime {
+                    time,
+                    seconds: self.seconds,
+                });
+            }
+        }
+        if !(0.0..=1.0).contains(&self.change) {
+            return Err(ConfigError::Change(self.change));
+        }
+        if let Some(n) = self.movers.filter(|&n| n > MAX_MOVERS) {
+            return Err(ConfigError::Movers(n));
+        }
         Ok(())
+    }
+
+    /// The seed of the sensor unit: `unit_seed`, else `seed`.
+    pub fn sensor_unit_seed(&self) -> u64 {
+        self.unit_seed.unwrap_or(self.seed)
+    }
+
+    /// Whether the run departs from the scenario's own route, unit or contents.
+    pub fn is_variant(&self) -> bool {
+        self.path_seed.is_some()
+            || self.reverse
+            || self.start_fraction != 0.0
+            || self.kidnap_s.is_some()
+            || self.unit_seed.is_some()
+            || self.change > 0.0
+            || self.movers.is_some()
     }
 
     /// The time of the first firing: the configured one, or one derived from the seed (a
@@ -199,6 +289,10 @@ pub(crate) enum Stream {
     Noise = 4,
     Loss = 5,
     Vibration = 6,
+    Path = 7,
+    Change = 8,
+    Kidnap = 9,
+    Movers = 10,
 }
 
 /// A ChaCha generator for one purpose of one seed.
@@ -383,6 +477,55 @@ mod tests {
             .validate(),
             Err(ConfigError::StartTime(0))
         ));
+    }
+
+    #[test]
+    fn invalid_variations_of_a_run_are_refused() {
+        let ok = SimConfig {
+            seconds: 10.0,
+            path_seed: Some(3),
+            reverse: true,
+            start_fraction: 0.5,
+            kidnap_s: Some(9.75),
+            unit_seed: Some(2),
+            change: 1.0,
+            movers: Some(MAX_MOVERS),
+            ..SimConfig::default()
+        };
+        assert_eq!(ok.validate(), Ok(()));
+        for f in [1.0, -0.1, f64::NAN] {
+            let c = SimConfig {
+                start_fraction: f,
+                ..ok.clone()
+            };
+            assert!(
+                matches!(c.validate(), Err(ConfigError::StartFraction(_))),
+                "{f}"
+            );
+        }
+        for t in [0.0, -2.0, 9.8, 10.0, f64::NAN, f64::INFINITY] {
+            let c = SimConfig {
+                kidnap_s: Some(t),
+                ..ok.clone()
+            };
+            assert!(
+                matches!(c.validate(), Err(ConfigError::KidnapTime { .. })),
+                "{t}"
+            );
+        }
+        for f in [1.01, -0.5, f64::NAN] {
+            let c = SimConfig {
+                change: f,
+                ..ok.clone()
+            };
+            assert!(matches!(c.validate(), Err(ConfigError::Change(_))), "{f}");
+        }
+        let c = SimConfig {
+            movers: Some(MAX_MOVERS + 1),
+            ..ok
+        };
+        assert_eq!(c.validate(), Err(ConfigError::Movers(MAX_MOVERS + 1)));
+        assert!(!SimConfig::default().is_variant());
     }
 
     #[test]

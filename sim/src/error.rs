@@ -27,6 +27,15 @@ pub enum SimError {
         /// What went wrong (boxed: a layout error carries the offending shape).
         source: Box<LayoutError>,
     },
+    /// The kidnap cannot happen as asked: no sweep ends in the run after the requested time, or
+    /// no place on the route is far enough from where the robot is then.
+    #[error("cannot kidnap the robot {time_s} s after the start: {reason}")]
+    Kidnap {
+        /// The requested time, s after the start.
+        time_s: f64,
+        /// Why not.
+        reason: String,
+    },
     /// A run needs somewhere to go: an output directory or a UDP destination.
     #[error("nothing to do: give an output directory or a UDP destination")]
     NoOutput,

@@ -141,6 +141,63 @@ impl Shape {
         }
     }
 
+    /// The same shape moved by `d`.
+    pub fn translated(&self, d: [f64; 3]) -> Shape {
+        let add = |p: [f64; 3]| [p[0] + d[0], p[1] + d[1], p[2] + d[2]];
+        match *self {
+            Shape::Rect { center, u, v, half } => Shape::Rect {
+                center: add(center),
+                u,
+                v,
+                half,
+            },
+            Shape::Cuboid {
+                center,
+                yaw,
+                pitch,
+                roll,
+                half,
+            } => Shape::Cuboid {
+                center: add(center),
+                yaw,
+                pitch,
+                roll,
+                half,
+            },
+            Shape::Cylinder {
+                base,
+                height,
+                radius,
+            } => Shape::Cylinder {
+                base: add(base),
+                height,
+                radius,
+            },
+            Shape::Pole {
+                base,
+                height,
+                radius,
+            } => Shape::Pole {
+                base: add(base),
+                height,
+                radius,
+            },
+            Shape::Ramp {
+                base,
+                yaw,
+                length,
+                width,
+                height,
+            } => Shape::Ramp {
+                base: add(base),
+                yaw,
+                length,
+                width,
+                height,
+            },
+        }
+    }
+
     /// A short name for reports.
     pub fn kind(&self) -> &'static str {
         match self {

@@ -8,7 +8,8 @@
 //! - [`sensor`]: the VLP-16's own tables (from the manual, not from the decoder), echoes,
 //!   reflectivity and return selection.
 //! - [`simulation`]: packets in send order, per-return truth, ground-truth instants.
-//! - [`scenarios`]: the warehouse, the corridor and the yard, and their descriptions.
+//! - [`scenarios`]: the warehouse, the corridor and the yard, their routes and descriptions.
+//! - [`changes`]: the same scene on another day, with some goods moved or gone.
 //! - [`output`] and [`stream`]: files (pcap, TUM, scene.json) and live UDP.
 //!
 //! The library never imports the decoder's tables (`glint_driver::model`, `glint_driver::decode`):
@@ -16,6 +17,7 @@
 //! decoder and the simulator check each other.
 
 pub mod bvh;
+pub mod changes;
 pub mod config;
 pub mod error;
 pub mod geometry;

@@ -1,6 +1,7 @@
 //! A run's files: `scan.pcap` (Ethernet/IPv4/UDP as the sensor sends it), `groundtruth.tum`
-//! (the sensor's pose at every sweep's last firing), `groundtruth_dense.tum` (100 Hz) and
-//! `scene.json` (what was simulated, with its conventions).
+//! (the sensor's pose at every sweep's last firing), `groundtruth_dense.tum` (100 Hz),
+//! `scene.json` (what was simulated, with its conventions) and, for a run with a kidnap,
+//! `kidnaps.txt` (the ground-truth instants that bracket each jump).
 
 use std::fs::{self, File};
 use std::io::{BufWriter, Write};
@@ -34,6 +35,8 @@ pub const GROUNDTRUTH_FILE: &str = "groundtruth.tum";
 pub const DENSE_GROUNDTRUTH_FILE: &str = "groundtruth_dense.tum";
 /// See [`PCAP_FILE`].
 pub const SCENE_FILE: &str = "scene.json";
+/// See [`PCAP_FILE`]. Written only when the run has a kidnap.
+pub const KIDNAPS_FILE: &str = "kidnaps.txt";
 
 /// Endpoints of a packet as the sensor sends it: from 192.168.1.201 to broadcast, source port
 /// equal to destination port.
@@ -108,6 +111,21 @@ impl OutputWriter {
             &upto(sim.dense_times()),
             |t| sim.sensor_pose_at(t),
         )?;
+        let kidnaps_path = self.dir.join(KIDNAPS_FILE);
+        let kidnaps: Vec<String> = sim
+            .kidnaps()
+            .iter()
+            .filter(|k| k.after_ns <= end)
+            .map(|k| kidnap_line(k.before_ns, k.after_ns))
+            .collect();
+        if sim.config().kidnap_s.is_some() {
+            let text: String = kidnaps.iter().map(|l| format!("{l}\n")).collect();
+            fs::write(&kidnaps_path, text).map_err(io_error("write", &kidnaps_path))?;
+        } else if kidnaps_path.exists() {
+            // A kidnaps.txt from an earlier run into this directory would describe jumps this
+            // run does not have.
+            fs::remove_file(&kidnaps_path).map_err(io_error("remove", &kidnaps_path))?;
+        }
         let path = self.dir.join(SCENE_FILE);
         let text =
             serde_json::to_string_pretty(&scene_json(sim, summary)).map_err(|e| SimError::Io {
@@ -146,6 +164,13 @@ fn write_tum(path: &Path, times: &[u64], pose: impl Fn(u64) -> Pose) -> Result<(
     out.flush().map_err(io_error("write", path))
 }
 
+/// One line of `kidnaps.txt`: the last ground-truth time before the jump and the first after
+/// it, in seconds with 9 decimals.
+pub fn kidnap_line(before_ns: u64, after_ns: u64) -> String {
+    let s = |t: u64| format!("{}.{:09}", t / 1_000_000_000, t % 1_000_000_000);
+    format!("{} {}", s(before_ns), s(after_ns))
+}
+
 /// An instant as RFC 3339 UTC with ns.
 pub fn format_utc(time_ns: u64) -> String {
     let secs = time_ns / 1_000_000_000;
@@ -162,6 +187,49 @@ pub fn format_utc(time_ns: u64) -> String {
 
 /// What was simulated, with the conventions needed to use the outputs.
 pub fn scene_json(sim: &Simulation, summary: &SimSummary) -> Value {
+    let mut value = base_scene_json(sim, summary);
+    if sim.config().is_variant() {
+        value["variant"] = variant_json(sim);
+    }
+    value
+}
+
+/// How the run departs from its scenario's own route, unit and contents.
+fn variant_json(sim: &Simulation) -> Value {
+    let c = sim.config();
+    let kidnaps: Vec<Value> = sim
+        .kidnaps()
+        .iter()
+        .map(|k| {
+            json!({
+                "before_ns": k.before_ns,
+                "after_ns": k.after_ns,
+                "from_xy": k.from,
+                "to_xy": k.to,
+                "distance_m": (k.to[0] - k.from[0]).hypot(k.to[1] - k.from[1]),
+            })
+        })
+        .collect();
+    json!({
+        "path_seed": c.path_seed,
+        "reverse": c.reverse,
+        "start_fraction": c.start_fraction,
+        "unit_seed": c.unit_seed,
+        "change": c.change,
+        "change_seed": c.change_seed,
+        "movers": c.movers,
+        "kidnap_s": c.kidnap_s,
+        "kidnaps": kidnaps,
+        "changed_objects": sim.changes(),
+        "conventions": {
+            "frame": "every run of one scenario and seed shares the scene frame, whatever its route, direction, start, unit or changes",
+            "kidnaps": "the robot is teleported right after a sweep end; before_ns and after_ns are consecutive sweep ends (lines of groundtruth.tum), groundtruth_dense.tum has no line strictly between them, and kidnaps.txt lists them in seconds, one jump per line: never interpolate across a jump",
+            "changed_objects": "movable objects of the unchanged scene (centre of their box) removed (shift null) or moved horizontally by shift; primitive ids in scene.primitives are those of the changed scene",
+        },
+    })
+}
+
+fn base_scene_json(sim: &Simulation, summary: &SimSummary) -> Value {
     let c = sim.config();
     let sensor = sim.sensor();
     let scene = sim.scene();

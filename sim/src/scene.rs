@@ -104,6 +104,7 @@ pub struct SceneBuilder {
     primitives: Vec<Primitive>,
     movers: Vec<Mover>,
     tags: Vec<String>,
+    movable: Vec<[u32; 2]>,
 }
 
 impl SceneBuilder {
@@ -187,6 +188,85 @@ impl SceneBuilder {
         self.primitives.len()
     }
 
+    /// The primitives added so far, by id.
+    pub fn primitives(&self) -> &[Primitive] {
+        &self.primitives
+    }
+
+    /// The movers added so far.
+    pub fn movers(&self) -> &[Mover] {
+        &self.movers
+    }
+
+    /// Tag names so far.
+    pub fn tags(&self) -> &[String] {
+        &self.tags
+    }
+
+    /// Declares the primitives added since id `first` one movable object (a pallet with its
+    /// load, a stack, a parked car): goods that may be somewhere else on another day, unlike
+    /// walls, racks and pillars. Nothing is recorded when no primitive was added.
+    pub fn mark_movable(&mut self, first: u32) {
+        let end = self.primitives.len() as u32;
+        if first < end {
+            self.movable.push([first, end]);
+        }
+    }
+
+    /// The movable objects, each as the id range `[first, end)` of its primitives.
+    pub fn movable_objects(&self) -> &[[u32; 2]] {
+        &self.movable
+    }
+
+    /// Moves movable object `index` by `d`.
+    pub fn shift_movable(&mut self, index: usize, d: [f64; 3]) {
+        let [first, end] = self.movable[index];
+        for p in &mut self.primitives[first as usize..end as usize] {
+            p.shape = p.shape.translated(d);
+        }
+    }
+
+    /// Removes the movable objects whose indices are listed; the ids of later primitives
+    /// shift down accordingly.
+    pub fn remove_movables(&mut self, indices: &[usize]) {
+        let mut gone = vec![false; self.primitives.len()];
+        for &i in indices {
+            let [first, end] = self.movable[i];
+            gone[first as usize..end as usize].fill(true);
+        }
+        // New id of every kept primitive: the kept ones before it.
+        let mut new_id = Vec::with_capacity(gone.len() + 1);
+        let mut kept = 0u32;
+        for &g in &gone {
+            new_id.push(kept);
+            kept += u32::from(!g);
+        }
+        new_id.push(kept);
+        let mut k = 0;
+        self.primitives.retain(|_| {
+            k += 1;
+            !gone[k - 1]
+        });
+        let mut index = 0;
+        self.movable.retain(|_| {
+            index += 1;
+            !indices.contains(&(index - 1))
+        });
+        for range in &mut self.movable {
+            *range = range.map(|id| new_id[id as usize]);
+        }
+    }
+
+    /// Keeps the first `n` movers only.
+    pub fn keep_movers(&mut self, n: usize) {
+        self.movers.truncate(n);
+    }
+
+    /// Adds a mover like `mover` at another phase of its back-and-forth.
+    pub fn copy_mover(&mut self, mover: &Mover, phase: f64) {
+        self.movers.push(Mover { phase, ..*mover });
+    }
+
     /// Builds the scene: decal grids, the floor/ceiling list and the BVH over the rest.
     pub fn build(mut self) -> Scene {
         for m in &mut self.materials {
@@ -239,6 +319,7 @@ impl SceneBuilder {
             primitives: self.primitives,
             movers: self.movers,
             tags: self.tags,
+            movable: self.movable,
             bounds: scene_box,
             bvh,
             leaf_ids,
@@ -284,6 +365,7 @@ pub struct Scene {
     primitives: Vec<Primitive>,
     movers: Vec<Mover>,
     tags: Vec<String>,
+    movable: Vec<[u32; 2]>,
     bounds: Aabb,
     bvh: Bvh,
     leaf_ids: Vec<u32>,
@@ -312,6 +394,12 @@ impl Scene {
     /// Tag names.
     pub fn tags(&self) -> &[String] {
         &self.tags
+    }
+
+    /// The movable objects, each as the id range `[first, end)` of its primitives (see
+    /// [`SceneBuilder::mark_movable`]).
+    pub fn movable_objects(&self) -> &[[u32; 2]] {
+        &self.movable
     }
 
     /// The box around every static primitive.

@@ -133,9 +133,10 @@ pub struct Vlp16 {
 }
 
 impl Vlp16 {
-    /// The unit for a run: gains and start angle from the seed; noise per the config.
+    /// The unit for a run: gains and start angle from the unit seed (the run's seed unless
+    /// another unit is asked for); noise per the config.
     pub fn new(config: &SimConfig) -> Vlp16 {
-        let mut rng = seeded_rng(config.seed, Stream::SensorUnit);
+        let mut rng = seeded_rng(config.sensor_unit_seed(), Stream::SensorUnit);
         let start_azimuth = rng.random_range(0.0..std::f64::consts::TAU);
         let mut gains = [1.0; LASERS];
         if config.laser_gain_bias > 0.0 {

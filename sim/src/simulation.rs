@@ -8,6 +8,10 @@
 //! packet leaves [`SEND_LATENCY_NS`] after its last firing; position packets leave every
 //! [`POSITION_PERIOD_NS`], the first at the start time, so a reader has the GPS hour before the
 //! first data packet.
+//!
+//! A kidnap teleports the robot at the end of a sweep, so that no sweep spans the jump: the
+//! sweep ends before and after it are consecutive ground-truth instants, and the dense ground
+//! truth leaves out its instants in between, so no ground-truth line lies inside a jump.
 
 use glint_driver::nmea::format_rmc;
 use glint_driver::wire::{
@@ -17,7 +21,8 @@ use glint_driver::wire::{
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::config::{seeded_rng, SimConfig, Stream};
+use crate::changes::ChangedObject;
+use crate::config::{seeded_rng, SimConfig, Stream, KIDNAP_MIN_DISTANCE_M};
 use crate::error::SimError;
 use crate::scenarios;
 use crate::scene::{Reflect, Scene};
@@ -150,6 +155,25 @@ pub struct TruthReturn {
     pub retro: bool,
 }
 
+/// A teleport of the robot during a run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Kidnap {
+    /// The last ground-truth instant before the jump (a sweep end), ns since the Unix epoch.
+    pub before_ns: u64,
+    /// The first ground-truth instant after it (the next sweep end).
+    pub after_ns: u64,
+    /// The base's position at `before_ns`, scene frame, m.
+    pub from: [f64; 2],
+    /// The base's position at `after_ns`, scene frame, m.
+    pub to: [f64; 2],
+}
+
+/// How much farther than [`KIDNAP_MIN_DISTANCE_M`] the destination is chosen from where the
+/// base is, m: the sensor sits off the base's centre and moves on for up to a sweep before
+/// the next ground-truth instant, so the sensor's jump between the instants that bracket it
+/// still exceeds the minimum.
+const KIDNAP_MARGIN_M: f64 = 1.0;
+
 /// Counts of a run so far.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct SimStats {
@@ -184,23 +208,27 @@ pub struct Simulation {
     position: Box<[u8; POSITION_PAYLOAD_LEN]>,
     poses: PoseBuffer,
     stats: SimStats,
+    kidnaps: Vec<Kidnap>,
+    changes: Vec<ChangedObject>,
 }
 
 impl Simulation {
     /// A run of the configured scenario.
     pub fn new(config: &SimConfig) -> Result<Simulation, SimError> {
         config.validate()?;
-        let built =
-            scenarios::build(config.scenario, config.seed).map_err(|source| SimError::Layout {
-                scenario: config.scenario.to_string(),
-                seed: config.seed,
-                source: Box::new(source),
-            })?;
-        Simulation::from_parts(config, built.scene, built.trajectory, built.description)
+        let built = scenarios::build_run(config).map_err(|source| SimError::Layout {
+            scenario: config.scenario.to_string(),
+            seed: config.seed,
+            source: Box::new(source),
+        })?;
+        let mut sim =
+            Simulation::from_parts(config, built.scene, built.trajectory, built.description)?;
+        sim.changes = built.changes;
+        Ok(sim)
     }
 
     /// A run in a scene and motion of the caller's (tests on known geometry). The config's
-    /// scenario is then only a label.
+    /// scenario is then only a label; its kidnap, if any, is applied to the motion.
     pub fn from_parts(
         config: &SimConfig,
         scene: Scene,
@@ -216,7 +244,7 @@ impl Simulation {
         let packet_ns = sequences_per_packet * SEQUENCE_NS;
         let data_total = config.duration_ns().div_ceil(packet_ns).max(1);
         let start_ns = config.start_time_ns();
-        Ok(Simulation {
+        let mut sim = Simulation {
             config: config.clone(),
             scene,
             trajectory,
@@ -227,13 +255,66 @@ impl Simulation {
             data_total,
             next_data: 0,
             next_position_ns: start_ns,
-            noise_rng: seeded_rng(config.seed, Stream::Noise),
+            noise_rng: seeded_rng(config.sensor_unit_seed(), Stream::Noise),
             loss_rng: seeded_rng(config.seed, Stream::Loss),
             data: Box::new([0; DATA_PAYLOAD_LEN]),
             position: Box::new([0; POSITION_PAYLOAD_LEN]),
             poses: PoseBuffer::default(),
             stats: SimStats::default(),
-        })
+            kidnaps: Vec::new(),
+            changes: Vec::new(),
+        };
+        if let Some(time_s) = config.kidnap_s {
+            sim.kidnap(time_s)?;
+        }
+        Ok(sim)
+    }
+
+    /// Teleports the robot at the first sweep end at or after `time_s` s into the run to a
+    /// place on the route drawn from the seed's kidnap stream among those far enough away.
+    fn kidnap(&mut self, time_s: f64) -> Result<(), SimError> {
+        let error = |reason: String| SimError::Kidnap { time_s, reason };
+        let target = self.start_ns + (time_s * 1e9).round() as u64;
+        let ends = self.sweep_end_times();
+        let k = ends.partition_point(|&t| t < target);
+        let (Some(&before_ns), Some(&after_ns)) = (ends.get(k), ends.get(k + 1)) else {
+            return Err(error("no sweep ends after it within the run".into()));
+        };
+        let before = self.rel(before_ns);
+        let here = self.trajectory.base_state(before);
+        let from = [here.x, here.y];
+        let min_distance = KIDNAP_MIN_DISTANCE_M + KIDNAP_MARGIN_M;
+        let places = self.trajectory.lap_times_away_from(from, min_distance);
+        if places.is_empty() {
+            return Err(error(format!(
+                "no place on the route is {min_distance} m from ({:.2}, {:.2}) m, where the robot is then",
+                from[0], from[1]
+            )));
+        }
+        let mut rng = seeded_rng(self.config.seed, Stream::Kidnap);
+        let lap_time = places[rng.random_range(0..places.len())];
+        // Half a laser interval past the sweep's last firing: no firing instant is near the
+        // switch, whatever the rounding of its time.
+        let switch = before + 0.5 * LASER_INTERVAL_NS as f64 * 1e-9;
+        self.trajectory = self.trajectory.clone().with_jump(switch, lap_time);
+        let there = self.trajectory.base_state(self.rel(after_ns));
+        self.kidnaps.push(Kidnap {
+            before_ns,
+            after_ns,
+            from,
+            to: [there.x, there.y],
+        });
+        Ok(())
+    }
+
+    /// The robot's teleports, in time order.
+    pub fn kidnaps(&self) -> &[Kidnap] {
+        &self.kidnaps
+    }
+
+    /// The movable objects the run's scene has removed or shifted.
+    pub fn changes(&self) -> &[ChangedObject] {
+        &self.changes
     }
 
     /// The configuration.
@@ -341,12 +422,19 @@ impl Simulation {
         out
     }
 
-    /// Instants of the dense ground truth: every 10 ms from the start to the last firing.
+    /// Instants of the dense ground truth: every 10 ms from the start to the last firing,
+    /// except those strictly inside a kidnap's jump.
     pub fn dense_times(&self) -> Vec<u64> {
         let end = self.last_firing_ns();
         (0..)
             .map(|k| self.start_ns + k * DENSE_PERIOD_NS)
             .take_while(|&t| t <= end)
+            .filter(|&t| {
+                !self
+                    .kidnaps
+                    .iter()
+                    .any(|j| j.before_ns < t && t < j.after_ns)
+            })
             .collect()
     }
 

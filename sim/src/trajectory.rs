@@ -7,6 +7,10 @@
 //! by twice the acceleration limit. Between grid nodes v² is linear in arc length, i.e. the
 //! acceleration is constant, so s(t) is a closed form and every firing gets its exact pose.
 //! The motion repeats lap after lap, so any duration can be simulated.
+//!
+//! The run's clock maps onto time along the path through a schedule: an offset (a run that
+//! starts part-way round the lap) and jumps (a kidnapped robot continues from another place),
+//! so a variation of a run moves the robot without rebuilding its path.
 
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 use rand::Rng;
@@ -229,6 +233,36 @@ pub struct Trajectory {
     motion: Motion,
     mount: Mount,
     vibration: Vibration,
+    schedule: Schedule,
+}
+
+/// Time along the path at each run time: `t + offset`, with the offset of the last jump whose
+/// instant `t` is later than.
+#[derive(Debug, Clone, Default, PartialEq)]
+struct Schedule {
+    offset: f64,
+    jumps: Vec<Jump>,
+}
+
+/// A discontinuity of the motion: instants later than `after` (s since the start) are at path
+/// time `t + offset`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Jump {
+    after: f64,
+    offset: f64,
+}
+
+impl Schedule {
+    #[inline]
+    fn path_time(&self, t: f64) -> f64 {
+        let offset = self
+            .jumps
+            .iter()
+            .rev()
+            .find(|j| t > j.after)
+            .map_or(self.offset, |j| j.offset);
+        t + offset
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -295,7 +329,85 @@ impl Trajectory {
             motion: Motion::Loop(Box::new(path)),
             mount,
             vibration,
+            schedule: Schedule::default(),
         })
+    }
+
+    /// The same loop driven the other way round: the waypoints in reverse order from the same
+    /// first one, with the speed profile that direction gets. A fixed pose stays as it is.
+    pub fn reversed(&self) -> Result<Trajectory, TrajectoryError> {
+        let Motion::Loop(path) = &self.motion else {
+            return Ok(self.clone());
+        };
+        let mut waypoints = path.waypoints.clone();
+        waypoints[1..].reverse();
+        Ok(Trajectory {
+            motion: Motion::Loop(Box::new(LoopPath::new(&waypoints, path.limits)?)),
+            mount: self.mount,
+            vibration: self.vibration.clone(),
+            schedule: self.schedule.clone(),
+        })
+    }
+
+    /// The same motion started `fraction` of the lap length along the path (to the 2 cm of
+    /// the path's grid), at the speed the profile has there.
+    pub fn starting_at(mut self, fraction: f64) -> Trajectory {
+        self.schedule.offset = self.lap_time_at(fraction);
+        self
+    }
+
+    /// Time into the lap at which the base has covered `fraction` of the lap's length (the
+    /// nearest grid node); 0 for a fixed pose.
+    pub fn lap_time_at(&self, fraction: f64) -> f64 {
+        match &self.motion {
+            Motion::Loop(p) => {
+                let nodes = p.t.len() - 1;
+                let k = (fraction.rem_euclid(1.0) * nodes as f64).round() as usize % nodes;
+                p.t[k]
+            }
+            Motion::Fixed(_) => 0.0,
+        }
+    }
+
+    /// Points along the path every grid node (2 cm), one lap, from the lap's start.
+    pub fn route_points(&self) -> Vec<[f64; 2]> {
+        match &self.motion {
+            Motion::Loop(p) => p.nodes[..p.nodes.len() - 1]
+                .iter()
+                .map(|n| [n.x, n.y])
+                .collect(),
+            Motion::Fixed(pose) => vec![[pose.translation.x, pose.translation.y]],
+        }
+    }
+
+    /// Times into the lap of the path's grid nodes at least `min_distance` m in a straight
+    /// line from `xy` (empty for a fixed pose).
+    pub fn lap_times_away_from(&self, xy: [f64; 2], min_distance: f64) -> Vec<f64> {
+        let Motion::Loop(p) = &self.motion else {
+            return Vec::new();
+        };
+        p.nodes[..p.nodes.len() - 1]
+            .iter()
+            .zip(&p.t)
+            .filter(|(n, _)| (n.x - xy[0]).hypot(n.y - xy[1]) >= min_distance)
+            .map(|(_, &t)| t)
+            .collect()
+    }
+
+    /// The same motion, except that at instants later than `after` s since the start the base
+    /// is where the path puts it `lap_time` s into a lap, driving on from there: a teleport.
+    /// Jumps must be added in time order.
+    pub fn with_jump(mut self, after: f64, lap_time: f64) -> Trajectory {
+        self.schedule.jumps.push(Jump {
+            after,
+            offset: lap_time - after,
+        });
+        self
+    }
+
+    /// The instants (s since the start) after which the motion jumps.
+    pub fn jumps(&self) -> Vec<f64> {
+        self.schedule.jumps.iter().map(|j| j.after).collect()
     }
 
     /// A sensor held still at `sensor_pose` (scene frame); for tests on known geometry.
@@ -308,6 +420,7 @@ impl Trajectory {
                 z: 0.0,
             },
             vibration: Vibration::none(),
+            schedule: Schedule::default(),
         }
     }
 
@@ -349,7 +462,7 @@ impl Trajectory {
     pub fn base_state(&self, t: f64) -> BaseState {
         match &self.motion {
             Motion::Loop(p) => {
-                let q = p.planar(t, &mut None);
+                let q = p.planar(self.schedule.path_time(t), &mut None);
                 BaseState {
                     x: q.x,
                     y: q.y,
@@ -421,7 +534,8 @@ impl Trajectory {
             for j in 0..inner {
                 let k = i * inner + j;
                 let (x, y, cy, sy, ..) = path.locate(
-                    t0 + i as f64 * outer_step + j as f64 * inner_step,
+                    self.schedule
+                        .path_time(t0 + i as f64 * outer_step + j as f64 * inner_step),
                     &mut cursor,
                 );
                 let (sp, cp) = small_sin_cos(buf.pitch[k]);

@@ -5,23 +5,24 @@
 //! 15 m, ceiling lights and exit signs, a dashed centre line — all repeating, so look-alike places
 //! abound — and a few unique ones: posters, a double door, a glass door, floor hazard markings,
 //! odd retro strips. The robot drives a 60–80 m stretch in the middle down and back on a
-//! racetrack, so the end walls stay more than 100 m away and are never hit.
+//! racetrack, so the end walls stay more than 100 m away and are never hit. The other routes are
+//! racetracks of 40–80 m over other stretches within 15 m of it, where the unique cues are.
 
 use std::f64::consts::PI;
 use std::fmt::Write as _;
 
 use rand::Rng;
 
-use super::{rho, Ctx, LayoutError};
+use super::{rho, Ctx, LayoutError, Plan, Route};
 use crate::scene::{Decal, Material, Pattern, Shape};
-use crate::trajectory::{rounded_polygon, MotionLimits, Mount, Trajectory};
+use crate::trajectory::{rounded_polygon, MotionLimits, Mount};
 
 /// Half the corridor's length, m.
 pub const HALF_LENGTH: f64 = 200.0;
 /// Half the distance between the robot's two lanes, m (also the U-turn radius).
 const LANE: f64 = 0.85;
 
-pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutError> {
+pub(super) fn build(ctx: &mut Ctx) -> Result<Plan, LayoutError> {
     let width = ctx.rng.random_range(3.3..3.7);
     let height = ctx.rng.random_range(2.9..3.1);
     let hw = 0.5 * width;
@@ -236,8 +237,26 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
         "ceiling",
     )?;
 
-    let corners = [[xa, -LANE], [xb, -LANE], [xb, LANE], [xa, LANE]];
-    let waypoints = rounded_polygon(&corners, LANE, 2.0);
+    let racetrack = |xa: f64, xb: f64| -> Route {
+        let corners = [[xa, -LANE], [xb, -LANE], [xb, LANE], [xa, LANE]];
+        Route {
+            waypoints: rounded_polygon(&corners, LANE, 2.0),
+            text: format!(
+                "robot: a racetrack between x = {xa:.1} and {xb:.1} m, out on y = −{LANE} m and back on y = +{LANE} m, U-turns of radius {LANE} m; the end walls stay at least {:.0} m away",
+                HALF_LENGTH - xa.abs().max(xb.abs()) - LANE
+            ),
+        }
+    };
+    let route = racetrack(xa, xb);
+    let mut alternatives = Vec::new();
+    for shift in [-15.0, -10.0, -5.0, 0.0, 5.0, 10.0, 15.0] {
+        for length in [40.0, 60.0, 80.0] {
+            let c = centre + shift;
+            if shift != 0.0 || (length - stretch).abs() > 5.0 {
+                alternatives.push(racetrack(c - 0.5 * length, c + 0.5 * length));
+            }
+        }
+    }
     let limits = MotionLimits {
         cruise_speed: 1.5,
         min_speed: 0.5,
@@ -250,7 +269,6 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
         y: 0.0,
         z: ctx.rng.random_range(0.5..0.9),
     };
-    let trajectory = Trajectory::closed_loop(&waypoints, limits, mount, ctx.vibration.clone())?;
 
     let mut unique = String::new();
     for n in &notes {
@@ -264,12 +282,14 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
             "repeating cues: doors every {door_left:.2} m on the left wall and every {door_right:.2} m on the right (dark leaf, frame, kick plate, number plate), {reflectors} retro AGV reflectors every 15 m on the right wall, ceiling lights every 3.6 m, exit signs every 20 m, a dashed centre line (3 m period)"
         ),
         format!("unique cues ({}):{unique}", notes.len()),
-        format!(
-            "robot: a racetrack between x = {xa:.1} and {xb:.1} m, out on y = −{LANE} m and back on y = +{LANE} m, U-turns of radius {LANE} m; the end walls stay at least {:.0} m away",
-            HALF_LENGTH - xa.abs().max(xb.abs()) - LANE
-        ),
     ];
-    Ok((trajectory, lines))
+    Ok(Plan {
+        route,
+        alternatives,
+        limits,
+        mount,
+        lines,
+    })
 }
 
 fn poster(ctx: &mut Ctx) -> Pattern {

@@ -5,15 +5,16 @@
 //! east ends of the double rows, the floor has slab-to-slab variation, aisle lines, a zebra
 //! walkway, stop bars and a unique painted label at each aisle entrance; the walls carry dock
 //! doors, signs, posters and retro markers. A pedestrian and a forklift move where the robot does
-//! not drive. The robot loops around one double row of the first block.
+//! not drive. The robot loops around one double row of the first block; the other routes loop
+//! around one or two adjacent double rows of one or two adjacent blocks.
 
 use std::f64::consts::{FRAC_PI_4, PI};
 
 use rand::Rng;
 
-use super::{rho, Ctx, LayoutError};
+use super::{rho, Ctx, LayoutError, Plan, Route};
 use crate::scene::{Decal, Material, MaterialId, Pattern, Shape};
-use crate::trajectory::{rounded_polygon, MotionLimits, Mount, Trajectory};
+use crate::trajectory::{rounded_polygon, MotionLimits, Mount};
 
 const BAY: f64 = 2.7;
 const RACK_DEPTH: f64 = 1.1;
@@ -53,7 +54,7 @@ struct Palette {
     loads: Vec<MaterialId>,
 }
 
-pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutError> {
+pub(super) fn build(ctx: &mut Ctx) -> Result<Plan, LayoutError> {
     let lx = ctx.rng.random_range(56.0..62.0);
     let ly = ctx.rng.random_range(38.0..42.0);
     let height = ctx.rng.random_range(9.0..11.0);
@@ -198,12 +199,41 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
 
     // The loop: around a double row of the first block, counter-clockwise.
     let doubles: Vec<&Row> = rows.iter().filter(|r| r.double).collect();
-    let row = doubles[ctx.rng.random_range(0..doubles.len())];
-    let b0 = &blocks[0];
-    let (xw, xe) = (b0.x0 - 0.5 * cross, b0.x1() + 0.5 * cross);
-    let (ys, yn) = (row.y0 - 0.5 * aisle, row.y1 + 0.5 * aisle);
+    let row = ctx.rng.random_range(0..doubles.len());
     let radius = 0.5 * aisle.min(cross) - 0.15;
-    let waypoints = rounded_polygon(&[[xw, ys], [xe, ys], [xe, yn], [xw, yn]], radius, 2.0);
+    let around = |b0: usize, b1: usize, r0: usize, r1: usize| -> Route {
+        let (xw, xe) = (blocks[b0].x0 - 0.5 * cross, blocks[b1].x1() + 0.5 * cross);
+        let (ys, yn) = (doubles[r0].y0 - 0.5 * aisle, doubles[r1].y1 + 0.5 * aisle);
+        let waypoints = rounded_polygon(&[[xw, ys], [xe, ys], [xe, yn], [xw, yn]], radius, 2.0);
+        let text = if (b0, b1, r0, r1) == (0, 0, row, row) {
+            format!(
+                "robot: loops counter-clockwise around the double row at y {:.1}–{:.1} m in the first block (aisles at y {ys:.2} and {yn:.2} m, cross aisles at x {xw:.2} and {xe:.2} m)",
+                doubles[r0].y0, doubles[r0].y1
+            )
+        } else {
+            format!(
+                "robot: loops counter-clockwise around {} at y {:.1}–{:.1} m in {} (aisles at y {ys:.2} and {yn:.2} m, cross aisles at x {xw:.2} and {xe:.2} m)",
+                if r0 == r1 { "the double row" } else { "two double rows" },
+                doubles[r0].y0,
+                doubles[r1].y1,
+                if b0 == b1 { format!("block {}", b0 + 1) } else { format!("blocks {}–{}", b0 + 1, b1 + 1) }
+            )
+        };
+        Route { waypoints, text }
+    };
+    let route = around(0, 0, row, row);
+    let mut alternatives = Vec::new();
+    for b0 in 0..blocks.len() {
+        for b1 in b0..blocks.len().min(b0 + 2) {
+            for r0 in 0..doubles.len() {
+                for r1 in r0..doubles.len().min(r0 + 2) {
+                    if (b0, b1, r0, r1) != (0, 0, row, row) {
+                        alternatives.push(around(b0, b1, r0, r1));
+                    }
+                }
+            }
+        }
+    }
     let limits = MotionLimits {
         cruise_speed: 1.5,
         min_speed: 0.5,
@@ -216,7 +246,6 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
         y: 0.0,
         z: ctx.rng.random_range(0.6..0.9),
     };
-    let trajectory = Trajectory::closed_loop(&waypoints, limits, mount, ctx.vibration.clone())?;
 
     let bays: Vec<String> = blocks.iter().map(|b| b.bays.to_string()).collect();
     let singles = rows.iter().filter(|r| !r.double).count();
@@ -239,12 +268,14 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
         ),
         "floor: concrete slabs (ρ 0.28/0.32), yellow aisle lines, zebra walkway, stop bars at aisle exits, a unique painted label at each aisle entrance, oil stains".to_string(),
         "movers: a pedestrian walking across the dock zone, a forklift driving the east end aisle".to_string(),
-        format!(
-            "robot: loops counter-clockwise around the double row at y {:.1}–{:.1} m in the first block (aisles at y {ys:.2} and {yn:.2} m, cross aisles at x {xw:.2} and {xe:.2} m)",
-            row.y0, row.y1
-        ),
     ];
-    Ok((trajectory, lines))
+    Ok(Plan {
+        route,
+        alternatives,
+        limits,
+        mount,
+        lines,
+    })
 }
 
 fn palette(ctx: &mut Ctx) -> Result<Palette, LayoutError> {
@@ -389,6 +420,7 @@ fn rack(
                 }
                 let cx = xf + slot * BAY;
                 let pallet = [1.0, RACK_DEPTH - 0.1, PALLET_HEIGHT];
+                let first = ctx.builder.primitive_count() as u32;
                 ctx.builder.add(
                     Shape::standing_box([cx, centre_y], base, 0.0, pallet),
                     p.pallet,
@@ -396,6 +428,7 @@ fn rack(
                 )?;
                 let room = (ceiling - base - PALLET_HEIGHT - 0.1).min(1.4);
                 if room < 0.3 {
+                    ctx.builder.mark_movable(first);
                     continue;
                 }
                 let size = [
@@ -415,6 +448,7 @@ fn rack(
                     material,
                     "load",
                 )?;
+                ctx.builder.mark_movable(first);
             }
         }
     }
@@ -738,6 +772,7 @@ fn dock_zone(ctx: &mut Ctx, ly: f64, doors: &[f64]) -> Result<usize, LayoutError
         while y < ly - 5.5 {
             if ctx.rng.random_bool(0.55) {
                 let stack = ctx.rng.random_range(1..=2);
+                let first = ctx.builder.primitive_count() as u32;
                 let mut z = 0.0;
                 for _ in 0..stack {
                     ctx.builder.add(
@@ -755,6 +790,7 @@ fn dock_zone(ctx: &mut Ctx, ly: f64, doors: &[f64]) -> Result<usize, LayoutError
                     )?;
                     z += h;
                 }
+                ctx.builder.mark_movable(first);
             }
             y += 1.4;
         }

@@ -5,17 +5,19 @@
 //! and a low wall on the south. Inside the robot's loop: parking rows with painted bays, cars,
 //! vans, a trailer, skips and a tree island (foliage is partial too). Lamp posts line the loop and
 //! sign posts with retro-reflective plates stand at its corners. A car drives along the south and
-//! a pedestrian walks along the north. The robot drives a rounded rectangle of 200–300 m.
+//! a pedestrian walks along the north. The robot drives a rounded rectangle of 200–300 m; the
+//! other routes are the loop's south or north half, closed along the lane between the parking
+//! rows and the trees.
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
 use rand::Rng;
 
-use super::{rho, Ctx, LayoutError};
+use super::{rho, Ctx, LayoutError, Plan, Route};
 use crate::scene::{Decal, Material, MaterialId, Pattern, Shape};
-use crate::trajectory::{rounded_polygon, MotionLimits, Mount, Trajectory};
+use crate::trajectory::{rounded_polygon, MotionLimits, Mount};
 
-pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutError> {
+pub(super) fn build(ctx: &mut Ctx) -> Result<Plan, LayoutError> {
     // The loop's half extents.
     let hx: f64 = ctx.rng.random_range(34.0..42.0);
     let hy: f64 = ctx.rng.random_range(22.0..28.0);
@@ -249,6 +251,7 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
         if ctx.rng.random_bool(0.8) {
             let m = container_mats[ctx.rng.random_range(0..container_mats.len())];
             let stack = if ctx.rng.random_bool(0.3) { 2 } else { 1 };
+            let first = ctx.builder.primitive_count() as u32;
             for level in 0..stack {
                 ctx.builder.add(
                     Shape::standing_box(
@@ -262,6 +265,7 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
                 )?;
                 containers += 1;
             }
+            ctx.builder.mark_movable(first);
         }
         x += ctx.rng.random_range(6.3..7.5);
     }
@@ -290,6 +294,7 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
             let cy = if ry < 0.0 { ry - 2.5 } else { ry + 2.5 };
             let body = body_mats[ctx.rng.random_range(0..body_mats.len())];
             let yaw = FRAC_PI_2 + ctx.rng.random_range(-0.05..0.05);
+            let first = ctx.builder.primitive_count() as u32;
             if ctx.rng.random_bool(0.2) {
                 ctx.builder.add(
                     Shape::standing_box([cx, cy], 0.25, yaw, [4.9, 2.0, 2.2]),
@@ -308,19 +313,23 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
                     "car",
                 )?;
             }
+            ctx.builder.mark_movable(first);
             cars += 1;
         }
     }
     let trailer = ctx.builder.material(Material::diffuse("trailer", 0.7))?;
     let tx = ctx.rng.random_range(-hx + 15.0..hx - 15.0);
+    let first = ctx.builder.primitive_count() as u32;
     ctx.builder.add(
         Shape::standing_box([tx, -hy + 5.0], 1.1, 0.0, [13.6, 2.5, 2.9]),
         trailer,
         "trailer",
     )?;
+    ctx.builder.mark_movable(first);
     let skip = ctx.builder.material(Material::diffuse("skip", 0.2))?;
     for _ in 0..ctx.rng.random_range(2..=4) {
         let sx = ctx.rng.random_range(-hx + 8.0..hx - 8.0);
+        let first = ctx.builder.primitive_count() as u32;
         ctx.builder.add(
             Shape::standing_box(
                 [sx, hy - 5.0],
@@ -331,6 +340,7 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
             skip,
             "skip",
         )?;
+        ctx.builder.mark_movable(first);
     }
     let bark = ctx.builder.material(Material::diffuse("tree trunk", 0.3))?;
     let leaves = ctx
@@ -451,7 +461,18 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
     )?;
 
     let corners = [[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]];
-    let waypoints = rounded_polygon(&corners, corner, 3.0);
+    let route = Route {
+        waypoints: rounded_polygon(&corners, corner, 3.0),
+        text: format!("robot: a rounded rectangle x ±{hx:.1} m, y ±{hy:.1} m, corner radius {corner} m, counter-clockwise"),
+    };
+    // Halves of the loop, closed along the lane between the parking rows, 3 m from the trees.
+    let half = |y0: f64, y1: f64, name: &str| {
+        Route {
+        waypoints: rounded_polygon(&[[-hx, y0], [hx, y0], [hx, y1], [-hx, y1]], corner, 3.0),
+        text: format!("robot: the {name} half of the loop, a rounded rectangle x ±{hx:.1} m, y {y0:.1}…{y1:.1} m, corner radius {corner} m, counter-clockwise"),
+    }
+    };
+    let alternatives = vec![half(-hy, -3.0, "south"), half(3.0, hy, "north")];
     let limits = MotionLimits {
         cruise_speed: 1.8,
         min_speed: 0.5,
@@ -464,7 +485,6 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
         y: 0.0,
         z: ctx.rng.random_range(0.7..1.0),
     };
-    let trajectory = Trajectory::closed_loop(&waypoints, limits, mount, ctx.vibration.clone())?;
 
     let lines = vec![
         format!("yard ~{:.0} × {:.0} m of asphalt (ρ {}), painted parking bays, a zebra crossing, stains and manholes", 2.0 * hx + 24.0, 2.0 * hy + 26.0, rho::ASPHALT),
@@ -474,7 +494,12 @@ pub(super) fn build(ctx: &mut Ctx) -> Result<(Trajectory, Vec<String>), LayoutEr
         format!("inside the loop: {cars} parked cars and vans, a trailer, skips, {trees} trees (foliage coverage 0.5)"),
         format!("poles: {lamps} lamp posts 3 m outside the loop, 4 sign posts with retro-reflective plates at the corners"),
         "movers: a car driving along the south side, a pedestrian walking along the north side".to_string(),
-        format!("robot: a rounded rectangle x ±{hx:.1} m, y ±{hy:.1} m, corner radius {corner} m, counter-clockwise"),
     ];
-    Ok((trajectory, lines))
+    Ok(Plan {
+        route,
+        alternatives,
+        limits,
+        mount,
+        lines,
+    })
 }
