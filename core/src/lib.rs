@@ -25,3 +25,5 @@ pub mod world_map;
 
 #[cfg(test)]
 mod test_random;
+#[cfg(test)]
+mod test_scenes;

@@ -124,7 +124,10 @@ pub struct Localisation {
 pub struct Localiser {
     config: LocaliserConfig,
     scan_context: ScanContextConfig,
-    map: SiteMap,
+    /// The saved keyframes: sensor → map, and the keyframe.
+    keyframes: Vec<(Isometry3<f64>, Keyframe)>,
+    /// Their descriptors, apart so that the global search reads them as a slice.
+    descriptors: Vec<ScanContext>,
     /// Whether a keyframe holds points to register against.
     held: Vec<bool>,
     state: MapState,
@@ -148,10 +151,16 @@ impl Localiser {
             .iter()
             .map(|k| !(k.keyframe.planes.is_empty() && k.keyframe.edges.is_empty()))
             .collect();
+        let (keyframes, descriptors) = map
+            .keyframes
+            .into_iter()
+            .map(|k| ((k.pose, k.keyframe), k.descriptor))
+            .unzip();
         Self {
             config: config.clone(),
             scan_context: scan_context.clone(),
-            map,
+            keyframes,
+            descriptors,
             held,
             state: MapState::Relocalising,
             correction: None,
@@ -178,11 +187,6 @@ impl Localiser {
             epoch,
         };
         (correction, outcome)
-    }
-
-    /// The map.
-    pub fn map(&self) -> &SiteMap {
-        &self.map
     }
 
     /// The state.
@@ -275,7 +279,7 @@ impl Localiser {
         let mut fixes: Vec<Isometry3<f64>> = Vec::new();
         let mut verifications = 0;
         for (index, guess) in candidates {
-            let anchor = self.map.keyframes[index].pose;
+            let anchor = self.keyframes[index].0;
             let Some(v) = self.register_anchored(
                 keyframe,
                 index,
@@ -315,12 +319,11 @@ impl Localiser {
         let max = self.config.max_verifications.max(1);
         if let Some(hint) = self.hint {
             let mut near: Vec<(f64, usize)> = self
-                .map
                 .keyframes
                 .iter()
                 .enumerate()
-                .map(|(i, k)| {
-                    let d = (k.pose.translation.vector - hint.translation.vector).norm();
+                .map(|(i, (pose, _))| {
+                    let d = (pose.translation.vector - hint.translation.vector).norm();
                     (d, i)
                 })
                 .filter(|(d, _)| *d <= self.config.hint_radius)
@@ -333,19 +336,13 @@ impl Localiser {
             similarity_threshold: self.config.similarity_threshold,
             ..self.scan_context.clone()
         };
-        let descriptors: Vec<ScanContext> = self
-            .map
-            .keyframes
-            .iter()
-            .map(|k| k.descriptor.clone())
-            .collect();
-        search(&descriptor, &descriptors, |_| true, &config)
+        search(&descriptor, &self.descriptors, |_| true, &config)
             .into_iter()
             .take(max)
             .map(|c| {
                 // The descriptor's yaw turns the query's frame into the candidate's.
                 let yaw = Isometry3::rotation(Vector3::z() * c.yaw);
-                (c.index, self.map.keyframes[c.index].pose * yaw)
+                (c.index, self.keyframes[c.index].0 * yaw)
             })
             .collect()
     }
@@ -359,7 +356,7 @@ impl Localiser {
         config: &VerificationConfig,
     ) -> Option<Isometry3<f64>> {
         let anchor = self.nearest_held(&predicted.translation.vector)?;
-        let anchor_pose = self.map.keyframes[anchor].pose;
+        let anchor_pose = self.keyframes[anchor].0;
         let v = self.register_anchored(
             keyframe,
             anchor,
@@ -379,15 +376,14 @@ impl Localiser {
         guesses: &[Isometry3<f64>],
         config: &VerificationConfig,
     ) -> Option<Verification> {
-        let centre = self.map.keyframes[anchor].pose;
+        let centre = self.keyframes[anchor].0;
         let mut near: Vec<(f64, usize)> = self
-            .map
             .keyframes
             .iter()
             .enumerate()
             .filter(|(i, _)| self.held[*i])
-            .map(|(i, k)| {
-                let d = (k.pose.translation.vector - centre.translation.vector).norm();
+            .map(|(i, (pose, _))| {
+                let d = (pose.translation.vector - centre.translation.vector).norm();
                 (d, i)
             })
             .filter(|(d, _)| *d <= self.config.submap_radius)
@@ -401,8 +397,8 @@ impl Localiser {
         let submap: Vec<Placed<'_>> = near
             .iter()
             .map(|&(_, i)| Placed {
-                pose: inverse * self.map.keyframes[i].pose,
-                keyframe: &self.map.keyframes[i].keyframe,
+                pose: inverse * self.keyframes[i].0,
+                keyframe: &self.keyframes[i].1,
             })
             .collect();
         Some(verify(keyframe, &submap, guesses, config))
@@ -410,13 +406,140 @@ impl Localiser {
 
     /// The saved keyframe with points nearest to `position`.
     fn nearest_held(&self, position: &Vector3<f64>) -> Option<usize> {
-        self.map
-            .keyframes
+        self.keyframes
             .iter()
             .enumerate()
             .filter(|(i, _)| self.held[*i])
-            .map(|(i, k)| ((k.pose.translation.vector - position).norm(), i))
+            .map(|(i, (pose, _))| ((pose.translation.vector - position).norm(), i))
             .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
             .map(|(_, i)| i)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::backend::config::BackEndConfig;
+    use crate::config::IntensityMapConfig;
+    use crate::intensity_map::IntensityMap;
+    use crate::se3::{exp, log};
+    use crate::site_map::SiteKeyframe;
+    use crate::test_scenes::keyframe_seen;
+    use nalgebra::Vector6;
+
+    /// A map of the test room from keyframes along a line, at their true poses.
+    fn room_map(config: &BackEndConfig) -> SiteMap {
+        let keyframes = (0..6)
+            .map(|i| {
+                let pose = exp(&Vector6::new(
+                    0.0,
+                    0.0,
+                    0.1 * i as f64,
+                    -6.0 + 2.0 * i as f64,
+                    0.5,
+                    0.0,
+                ));
+                let keyframe = keyframe_seen(&pose, &pose, i as u64);
+                let descriptor = ScanContext::new(
+                    keyframe.cloud.iter().map(|c| (c.position.into(), c.eta)),
+                    &config.scan_context,
+                );
+                SiteKeyframe {
+                    pose,
+                    keyframe,
+                    descriptor,
+                }
+            })
+            .collect();
+        SiteMap {
+            created_ns: 0,
+            sensor_model: "VLP-16".into(),
+            base_from_sensor: Isometry3::identity(),
+            keyframes,
+            intensity: IntensityMap::new(&IntensityMapConfig::default()),
+            edges: Vec::new(),
+        }
+    }
+
+    /// Keyframes of a robot driving through the room from `start` (map frame), its odometry
+    /// starting at the identity: `odom_offset` = map ← odom is what the localiser must find.
+    fn drive(start: &Isometry3<f64>, n: usize) -> Vec<Keyframe> {
+        let odom_offset = *start;
+        (0..n)
+            .map(|k| {
+                let step = exp(&Vector6::new(
+                    0.0,
+                    0.0,
+                    0.02 * k as f64,
+                    0.5 * k as f64,
+                    0.0,
+                    0.0,
+                ));
+                let truth = start * step;
+                keyframe_seen(&truth, &(odom_offset.inverse() * truth), k as u64)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_robot_booted_anywhere_in_the_map_is_found_and_confirmed() {
+        let config = BackEndConfig::default();
+        let mut localiser = Localiser::new(
+            room_map(&config),
+            &LocaliserConfig::default(),
+            &config.scan_context,
+        );
+        let start = exp(&Vector6::new(0.0, 0.0, -0.4, 1.3, -0.8, 0.0));
+        let mut states = Vec::new();
+        for keyframe in drive(&start, 5) {
+            let (correction, outcome) = localiser.answer(0, &keyframe);
+            states.push(outcome.state);
+            if outcome.state == MapState::Tracking {
+                let error = log(&(start.inverse() * correction.map_from_odom));
+                assert!(error.norm() < 0.02, "{error}");
+            }
+        }
+        // A fix from the first keyframe, confirmed by the second: no pose is tracked before.
+        assert_eq!(states[0], MapState::Relocalising, "{states:?}");
+        assert!(
+            states[1..].iter().all(|s| *s == MapState::Tracking),
+            "{states:?}"
+        );
+    }
+
+    #[test]
+    fn a_new_epoch_voids_the_fix_and_a_place_off_the_map_is_never_tracked() {
+        let config = BackEndConfig::default();
+        let mut localiser = Localiser::new(
+            room_map(&config),
+            &LocaliserConfig::default(),
+            &config.scan_context,
+        );
+        let start = exp(&Vector6::new(0.0, 0.0, -0.4, 1.3, -0.8, 0.0));
+        let states: Vec<MapState> = drive(&start, 4)
+            .iter()
+            .map(|k| localiser.answer(0, k).1.state)
+            .collect();
+        assert_eq!(localiser.state(), MapState::Tracking, "{states:?}");
+        // The odometry restarted (the robot was moved): the old correction means nothing.
+        let (_, outcome) = localiser.answer(1, &drive(&start, 1)[0]);
+        assert_ne!(outcome.state, MapState::Tracking);
+        // Keyframes of another place, whose points fit nothing in the map: never tracked.
+        let elsewhere = Isometry3::translation(300.0, 0.0, 0.0);
+        let (planes, _) = crate::test_scenes::room();
+        let stretched: Vec<_> = planes
+            .iter()
+            .map(|p| Vector3::new(p.y * 1.7, p.x * 0.6, p.z))
+            .collect();
+        let input = crate::solver::AlignmentInput {
+            edges: Vec::new(),
+            planes: stretched,
+            intensity: Vec::new(),
+        };
+        let other = Keyframe::new(9, elsewhere, &input, std::iter::empty(), &config.keyframes);
+        for _ in 0..4 {
+            let (_, outcome) = localiser.answer(2, &other);
+            assert_ne!(outcome.state, MapState::Tracking);
+        }
     }
 }

@@ -7,8 +7,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 use glintd::{
-    bench_cmd, decode_cmd, demo_cmd, echo_cmd, eval_cmd, info_cmd, map_cmd, posegraph_cmd, record_cmd,
-    replay_cmd, run_cmd, sim_cmd,
+    bench_cmd, decode_cmd, demo_cmd, echo_cmd, eval_cmd, info_cmd, map_cmd, posegraph_cmd,
+    record_cmd, replay_cmd, run_cmd, sim_cmd,
 };
 
 /// Glint: intensity-assisted LiDAR localisation for VLP-16 AGVs.

@@ -55,7 +55,11 @@ fn info(path: &std::path::Path) -> Result<()> {
     let info = glint_map::info(path)?;
     let read_ms = started.elapsed().as_secs_f64() * 1e3;
     let c = &info.counts;
-    say!("{}: glintmap format {}", path.display(), info.format_version);
+    say!(
+        "{}: glintmap format {}",
+        path.display(),
+        info.format_version
+    );
     say!(
         "created: {:.3} s since the Unix epoch, sensor {}",
         info.created_ns as f64 * 1e-9,

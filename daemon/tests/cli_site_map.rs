@@ -65,13 +65,26 @@ fn a_mapped_run_is_saved_inspected_and_localised_in() {
 
     let (o, out, err) = run(&["map", "info", &d("site.glintmap")]);
     assert!(o.status.success(), "{out}{err}");
-    assert!(out.contains("glintmap format 1") && out.contains("keyframes:"), "{out}");
+    assert!(
+        out.contains("glintmap format 1") && out.contains("keyframes:"),
+        "{out}"
+    );
     assert!(out.contains("extent (map frame)"), "{out}");
 
-    let (o, out, err) = run(&["map", "export", &d("site.glintmap"), "--out", &d("site.ply")]);
+    let (o, out, err) = run(&[
+        "map",
+        "export",
+        &d("site.glintmap"),
+        "--out",
+        &d("site.ply"),
+    ]);
     assert!(o.status.success(), "{out}{err}");
     let ply = std::fs::read(d("site.ply")).unwrap();
-    assert!(ply.starts_with(b"ply\n") && ply.len() > 10_000, "{} bytes", ply.len());
+    assert!(
+        ply.starts_with(b"ply\n") && ply.len() > 10_000,
+        "{} bytes",
+        ply.len()
+    );
 
     // The same capture localised in its own map: found at once, every later sweep verified,
     // and each verified pose where the mapping run put the same sweep.
@@ -99,7 +112,12 @@ fn a_mapped_run_is_saved_inspected_and_localised_in() {
         assert!(seconds <= 2.0, "{line}");
         let mapping = tum(&dir.join("mapping.tum"));
         let localised = tum(&dir.join("localised.tum"));
-        assert!(localised.len() * 10 >= mapping.len() * 8, "{} of {}", localised.len(), mapping.len());
+        assert!(
+            localised.len() * 10 >= mapping.len() * 8,
+            "{} of {}",
+            localised.len(),
+            mapping.len()
+        );
         for pose in &localised {
             let same = mapping
                 .iter()

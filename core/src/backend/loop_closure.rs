@@ -214,81 +214,8 @@ mod tests {
     use crate::backend::config::KeyframeConfig;
     use crate::backend::keyframe::Keyframe;
     use crate::se3::{exp, log};
+    use crate::test_scenes::{keyframe_at, room};
     use nalgebra::Vector6;
-
-    /// An L-shaped room with a pillar and a shelf: every direction constrained.
-    fn room() -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
-        let mut planes = Vec::new();
-        let mut edges = Vec::new();
-        let step = 0.2;
-        for i in 0..=100 {
-            for j in 0..=15 {
-                let (a, h) = (-10.0 + i as f64 * step, j as f64 * step);
-                planes.push(Vector3::new(a, -6.0, h));
-                planes.push(Vector3::new(a, 8.0, h));
-            }
-        }
-        for i in 0..=70 {
-            for j in 0..=15 {
-                let (a, h) = (-6.0 + i as f64 * step, j as f64 * step);
-                planes.push(Vector3::new(-10.0, a, h));
-                planes.push(Vector3::new(10.0, a, h));
-            }
-        }
-        for i in 0..=100 {
-            for j in 0..=70 {
-                planes.push(Vector3::new(
-                    -10.0 + i as f64 * step,
-                    -6.0 + j as f64 * step,
-                    -0.5,
-                ));
-            }
-        }
-        // A box (shelf) at (3, 2), 2 × 1 × 1.5 m.
-        for i in 0..=10 {
-            for j in 0..=7 {
-                let (a, h) = (3.0 + i as f64 * 0.2, j as f64 * 0.2);
-                planes.push(Vector3::new(a, 2.0, h));
-                planes.push(Vector3::new(a, 3.0, h));
-            }
-        }
-        for k in 0..=30 {
-            let h = k as f64 * 0.1;
-            for (x, y) in [
-                (-10.0, -6.0),
-                (10.0, 8.0),
-                (3.0, 2.0),
-                (5.0, 2.0),
-                (-4.0, 5.0),
-            ] {
-                edges.push(Vector3::new(x, y, h));
-            }
-        }
-        (planes, edges)
-    }
-
-    fn keyframe_at(pose: &Isometry3<f64>) -> Keyframe {
-        let (planes, edges) = room();
-        let inverse = pose.inverse();
-        let input = AlignmentInput {
-            edges: edges
-                .iter()
-                .map(|p| (inverse * Point3::from(*p)).coords)
-                .collect(),
-            planes: planes
-                .iter()
-                .map(|p| (inverse * Point3::from(*p)).coords)
-                .collect(),
-            intensity: Vec::new(),
-        };
-        Keyframe::new(
-            0,
-            *pose,
-            &input,
-            std::iter::empty(),
-            &KeyframeConfig::default(),
-        )
-    }
 
     #[test]
     fn verification_recovers_the_relative_pose_and_accepts() {
