@@ -2,7 +2,7 @@
 # Checks systemd/glintd.service with systemd's own tools and fails if either check does:
 #   1. `systemd-analyze verify` (syntax, directives, ExecStart binary present),
 #   2. `systemd-analyze security --offline=true`: the overall exposure must be <= 2.5
-#      (issue 7; override with EXPOSURE_MAX=...).
+#      (override with EXPOSURE_MAX=...).
 #
 #   bash scripts/check_systemd.sh [UNIT]          # default UNIT: systemd/glintd.service
 #

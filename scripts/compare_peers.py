@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
-"""Glint beside KISS-ICP on the three simulated scenarios (issue 5, "the peer side by side").
+"""Glint beside KISS-ICP on the three simulated scenarios.
 
 One command, from the repository root (any Python >= 3.8; nothing to install by hand):
 
     python3 scripts/compare_peers.py            # prints the table
-    python3 scripts/compare_peers.py --readme   # also rewrites README.md's "Compared with KISS-ICP"
+    python3 scripts/compare_peers.py --readme   # also writes the table to docs/peers.md
 
 For each scenario (warehouse, yard, corridor; seeds fixed below, 60 s each) it
   1. simulates the run: `glintd sim SCENARIO --seed N --seconds S` -> scan.pcap, groundtruth.tum;
@@ -354,8 +354,7 @@ return, as Glint does) and evaluates all three with the same `glintd eval`. Each
 drift (KITTI style, over 5–50 m segments) / ATE RMSE after SE(3) alignment / median wall time
 per sweep (mean CPU time per sweep, all threads; Glint's median is the front end plus the
 odometry, which run on two threads, KISS-ICP's its `register_frame` on two threads). Glint runs
-odometry only (`--no-loop`). Measured on {today} at commit {commit} on the 2-core development
-machine:
+odometry only (`--no-loop`). Measured on {today} at commit {commit} on a 2-core machine:
 
 {table(results)}
 
@@ -364,19 +363,12 @@ Outputs and logs are in `target/peers/`.
 
 
 def update_readme(section):
-    path = os.path.join(REPO, "README.md")
-    with open(path) as f:
-        text = f.read()
-    start = text.find(README_HEADING + "\n")
-    if start < 0:
-        text = text.rstrip("\n") + "\n\n" + section
-    else:
-        nxt = text.find("\n## ", start + len(README_HEADING))
-        rest = text[nxt + 1:] if nxt >= 0 else ""
-        text = text[:start] + section + ("\n" + rest if rest else "")
+    """Writes the table to docs/peers.md, which the README links to (figures stay out of the
+    README itself)."""
+    path = os.path.join(REPO, "docs", "peers.md")
     with open(path, "w") as f:
-        f.write(text)
-    print(f"README.md: '{README_HEADING}' written")
+        f.write("# " + section.lstrip("#").lstrip())
+    print(f"{path} written")
 
 
 def main():
@@ -390,7 +382,7 @@ def main():
     ap.add_argument("--scenarios", default=",".join(s for s, _ in SCENARIOS),
                     help="comma-separated subset of the scenarios")
     ap.add_argument("--readme", action="store_true",
-                    help=f"rewrite README.md's '{README_HEADING}' section with the table")
+                    help="also write the table to docs/peers.md")
     ap.add_argument("--reuse", action="store_true",
                     help="reuse simulated runs and KISS-ICP results already in --out (same "
                          "scenario, seed and length); Glint is always rerun")

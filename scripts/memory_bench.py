@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Peak memory of `glintd replay` on a long run against a short one (issue 5, "Memory").
+"""Peak memory of `glintd replay` on a long run against a short one.
 
     python3 scripts/memory_bench.py                   # 10-minute vs 1-minute warehouse run
     python3 scripts/memory_bench.py --glintd target/release/glintd --long 300
@@ -11,8 +11,7 @@ Simulates a warehouse run of --short and of --long seconds (same seed), replays 
 that revisits a place releases its points) (add --map to also build the whole run's map) and
 reads each replay's peak resident set size from the kernel: wait4()'s ru_maxrss for that child
 alone (and /proc/PID/status VmHWM, sampled while it runs, as a cross-check). Prints both peaks
-and their ratio, and exits 1 if long / short > 1.5 (the floor of issue 5: memory stays flat on
-an endless run).
+and their ratio, and exits 1 if long / short > 1.5 (memory must stay flat on an endless run).
 
 The 10-minute replay takes several minutes (6,000 sweeps at Glint's current speed, longer on a
 loaded machine); the simulated captures go to target/memory-bench/ (~90 MB per simulated

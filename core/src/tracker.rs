@@ -403,7 +403,7 @@ impl Tracker {
         }
         self.doubtful = 0;
         self.epoch += 1;
-        self.map_state = MapState::Relocalising;
+        self.map_state = MapState::Lost;
         self.relocalised_pending = false;
         self.restart_at = Some(estimate.pose);
         self.selector = KeyframeSelector::new();

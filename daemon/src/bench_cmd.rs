@@ -10,6 +10,7 @@ use anyhow::{bail, Result};
 use clap::Args;
 use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
+use glint_core::localiser::{localisation_keyframes, Localiser};
 use glint_core::odometry::{FrontEnd, Stage};
 use glint_core::tracker::Tracker;
 
@@ -27,6 +28,10 @@ pub struct BenchArgs {
     /// Odometry parameters from a daemon configuration (as `glintd run --config`).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Localisation mode: the tracker localising in this saved site map, each keyframe located
+    /// in the map on the same thread and timed apart (`--localize` is the same flag).
+    #[arg(long, value_name = "MAP", visible_alias = "localize")]
+    pub localise: Option<PathBuf>,
     /// Run the whole capture this many times, each from empty maps (as a real start), and time
     /// them all.
     #[arg(long, default_value_t = 1)]
@@ -50,9 +55,20 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let mut total = Vec::new();
     let mut sweeps = 0;
     let mut busy = Duration::ZERO;
+    let site_map = args.localise.as_deref().map(glint_map::load).transpose()?;
+    let mut locate = Vec::new();
+    let mut verified = 0u64;
     for _ in 0..args.repeat.max(1) {
         let mut front_end = FrontEnd::new(&config);
-        let mut tracker = Tracker::new(&config, None);
+        let mut localiser = site_map
+            .clone()
+            .map(|map| Localiser::new(map, &daemon.localiser, &daemon.backend.scan_context));
+        let mut tracker = match &localiser {
+            Some(_) => {
+                Tracker::localising(&config, &localisation_keyframes(&daemon.backend.keyframes))
+            }
+            None => Tracker::new(&config, None),
+        };
         let mut features = SweepFeatures::default();
         let mut points = Vec::new();
         sweeps = 0;
@@ -65,7 +81,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             front_end.process(&scan, &mut features);
             let t1 = Instant::now();
             let mut last = t1;
-            tracker.track(&features, None, |stage| {
+            let tracked = tracker.track(&features, None, |stage| {
                 let now = Instant::now();
                 let ms = (now - last).as_secs_f64() * 1e3;
                 last = now;
@@ -75,6 +91,13 @@ pub fn run(args: BenchArgs) -> Result<()> {
                     Stage::MapUpdate => map.push(ms),
                 }
             });
+            if let (Some(localiser), Some(keyframe)) = (localiser.as_mut(), &tracked.keyframe) {
+                let started = Instant::now();
+                let (correction, _) = localiser.answer(tracker.epoch(), keyframe);
+                tracker.apply(&correction);
+                locate.push(started.elapsed().as_secs_f64() * 1e3);
+            }
+            verified += u64::from(tracker.map_fix(&tracked.estimate).verified);
             front.push((t1 - t0).as_secs_f64() * 1e3);
             total.push((last - t0).as_secs_f64() * 1e3);
             busy += last - t0;
@@ -113,5 +136,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
     line("deskew", &mut deskew);
     line("alignment", &mut align);
     line("map update", &mut map);
+    if site_map.is_some() {
+        say!(
+            "localisation (off the pose path, on its own thread in the daemon): {} keyframes located, {verified} sweeps verified in the map",
+            locate.len()
+        );
+        line("locating a keyframe in the map", &mut locate);
+    }
     Ok(())
 }

@@ -409,7 +409,12 @@ pub fn run(mut options: Options) -> Result<Summary> {
     let heartbeats = Arc::new(Heartbeats {
         start: started,
         beats: Default::default(),
-        active: [true, true, true, options.backend.is_some()],
+        active: [
+            true,
+            true,
+            true,
+            options.backend.is_some() || options.site_map.localise.is_some(),
+        ],
     });
     let counters = Arc::new(ReceiveCounters::default());
 
@@ -1015,9 +1020,10 @@ impl BackEndLink {
         }
     }
 
-    /// The newest answer sent, if any (live).
-    fn latest(&self) -> Option<Correction> {
-        self.corrections.try_iter().last()
+    /// The answers sent since the last call, in order (live): each is applied, so a
+    /// relocalisation's jump is not lost behind a later answer.
+    fn arrived(&self) -> impl Iterator<Item = Correction> + '_ {
+        self.corrections.try_iter()
     }
 }
 
@@ -1190,7 +1196,7 @@ fn run_odometry(
                 }
             }
             if link.lockstep == Lockstep::Off {
-                if let Some(c) = link.latest() {
+                for c in link.arrived() {
                     tracker.apply(&c);
                 }
             }
@@ -1238,6 +1244,8 @@ struct Sink {
     mode: SiteMapMode,
     /// Localising: since when (sensor time) the map pose has not been verified.
     searching_since: Option<u64>,
+    /// Localising: the localiser's state at the last sweep.
+    last_map_state: Option<MapState>,
     /// Written as the poses come (map frame), unless `final_trajectory`.
     trajectory: Option<TrajectoryWriter>,
     kitti: Option<TrajectoryWriter>,
@@ -1286,6 +1294,7 @@ impl Sink {
             trajectory_from_world: (mode != SiteMapMode::Off).then_some(site_from_world),
             mode,
             searching_since: None,
+            last_map_state: None,
             trajectory,
             kitti,
             odom_trajectory,
@@ -1449,9 +1458,10 @@ impl Sink {
             };
         }
         let fix = e.map_fix;
-        if fix.state == MapState::Lost {
+        if fix.state == MapState::Lost && self.last_map_state != Some(MapState::Lost) {
             self.summary.map_lost.push(time_ns);
         }
+        self.last_map_state = Some(fix.state);
         if fix.verified {
             self.summary.map_verified += 1;
             let since = self.searching_since.take();
@@ -1514,6 +1524,10 @@ impl Sink {
         let mut flags = self
             .latest
             .map_or(StatusFlags::INITIALISING, |(last, _)| last.flags);
+        if self.mode == SiteMapMode::Localising && self.last_map_state != Some(MapState::Tracking) {
+            // The status speaks for the `map` stream too: not yet (or no longer) in the map.
+            flags = flags.with(StatusFlags::RELOCALISING);
+        }
         if silent {
             flags = flags.with(StatusFlags::SENSOR_SILENT);
         }
