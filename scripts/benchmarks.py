@@ -14,9 +14,10 @@ nothing is copied by hand, so the page is only ever as old as its header says. I
   3. odometry time on one core: `taskset -c 0 glintd bench D/scan.pcap` (median of --repeat runs);
   4. the whole chain: `glintd demo`; the pose graph: `glintd posegraph` on the parking garage;
   5. latency at the sensor's pace: `glintd replay D/scan.pcap --pace realtime`;
-  6. `scripts/compare_peers.py` (KISS-ICP on the same sweeps; needs PyPI) and
+  6. `scripts/localisation_bench.py` (localisation in a saved map, 20 runs; 4 with --quick),
+  7. `scripts/compare_peers.py` (KISS-ICP on the same sweeps; needs PyPI) and
      `scripts/memory_bench.py` (peak RSS, odometry and `--slam`), when present.
---quick shortens 1-4 and leaves out 5-6. Simulated runs go to target/benchmarks/ (reused when the
+--quick shortens 1-4 and 6 and leaves out 5 and 7. Simulated runs go to target/benchmarks/ (reused when the
 same scenario, seed and length is asked again). Plain Python 3, no packages.
 """
 import argparse
@@ -272,6 +273,23 @@ class Bench:
             "threads).",
             "python3 scripts/compare_peers.py", table)
 
+    def localisation(self):
+        script = os.path.join(REPO, "scripts", "localisation_bench.py")
+        runs = 4 if self.quick else 20
+        text = run([sys.executable, script, "--glintd", self.glintd, "--runs", str(runs),
+                    "--out", os.path.join(self.out, "localisation")])
+        keep = [line for line in text.splitlines()
+                if line.startswith(("run ", "mapping run", "keyframes:", "size:"))
+                or "runs:" in line or line.startswith(("kidnaps:", "position RMSE"))]
+        self.section(
+            "Localisation in a saved map",
+            f"One warehouse mapped (150 s), {runs} runs of the same scene localised in its map "
+            "(other routes, directions, starts, sensor units, a third of the goods moved, more "
+            "movers, kidnaps) and scored without alignment through the mapping run's first pose "
+            "(`glintd eval --no-align --anchor`).",
+            f"python3 scripts/localisation_bench.py --runs {runs}",
+            "```\n" + "\n".join(keep) + "\n```")
+
     def memory(self):
         script = os.path.join(REPO, "scripts", "memory_bench.py")
         if not os.path.exists(script):
@@ -383,6 +401,8 @@ def main():
         b.demo()
         print("pose graph", flush=True)
         b.posegraph()
+        print("localisation", flush=True)
+        b.localisation()
         if args.quick:
             skipped += ["latency at the sensor's pace", "KISS-ICP comparison", "memory"]
         else:

@@ -83,13 +83,14 @@ impl Default for LocaliserConfig {
     }
 }
 
-/// Keyframes for localisation from the mapping run's: every half metre or second, so a
-/// relocalisation (a fix and the keyframe that confirms it) takes about a second of driving,
-/// or of standing still.
+/// Keyframes for localisation from the mapping run's: every 0.3 m or half second, so that a
+/// relocalisation (a fix and the keyframe that confirms it) takes well under a second of
+/// driving or of standing still, and a pose that stopped fitting the map is caught within two
+/// or three sweeps.
 pub fn localisation_keyframes(mapping: &KeyframeConfig) -> KeyframeConfig {
     KeyframeConfig {
-        min_distance: 0.5,
-        max_interval_ns: 1_000_000_000,
+        min_distance: 0.3,
+        max_interval_ns: 500_000_000,
         ..mapping.clone()
     }
 }
@@ -101,6 +102,11 @@ pub enum MapState {
     Relocalising,
     /// The correction is verified.
     Tracking,
+    /// Tracking, but the last registration did not fit: the pose may no longer be where the
+    /// correction puts it (the robot carried to a look-alike aisle is matched as usual by its
+    /// odometry), so it is not verified until a registration fits again, or is lost after
+    /// `lost_after` that do not.
+    Checking,
     /// Tracking was just lost (the pose no longer fits the map): relocalising from the next
     /// keyframe.
     Lost,
@@ -185,6 +191,7 @@ impl Localiser {
             state: outcome.state,
             relocalised: outcome.relocalised,
             epoch,
+            keyframe_ns: keyframe.time_ns,
         };
         (correction, outcome)
     }
@@ -262,9 +269,13 @@ impl Localiser {
     }
 
     fn outcome(&self, relocalised: bool, verifications: usize) -> Localisation {
+        let state = match self.state {
+            MapState::Tracking if self.failures > 0 => MapState::Checking,
+            state => state,
+        };
         Localisation {
-            state: self.state,
-            correction: (self.state == MapState::Tracking)
+            state,
+            correction: matches!(state, MapState::Tracking | MapState::Checking)
                 .then_some(self.correction)
                 .flatten(),
             relocalised,

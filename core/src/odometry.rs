@@ -158,16 +158,21 @@ impl Odometry {
         features: &SweepFeatures,
         on_stage: impl FnMut(Stage),
     ) -> OdometryEstimate {
-        // Step 0: constant-velocity prediction.
-        let prediction = match self.last {
-            Some((t, pose)) if features.reference_ns > t => {
-                let dt = (features.reference_ns - t) as f64 * 1e-9;
+        let prediction = self.prediction(features.reference_ns);
+        self.register_from(features, prediction, on_stage)
+    }
+
+    /// Step 0: the pose at `time_ns` by constant velocity from the last one (the identity
+    /// before the first sweep).
+    pub fn prediction(&self, time_ns: u64) -> Isometry3<f64> {
+        match self.last {
+            Some((t, pose)) if time_ns > t => {
+                let dt = (time_ns - t) as f64 * 1e-9;
                 pose * exp(&(self.velocity * dt))
             }
             Some((_, pose)) => pose,
             None => Isometry3::identity(),
-        };
-        self.register_from(features, prediction, on_stage)
+        }
     }
 
     /// Registers one sweep whose true pose is known (ground truth, in diagnostics): aligns it

@@ -31,6 +31,15 @@ const RESUME_COST_RATIO: f64 = 2.0;
 /// moved (kidnapped), or the sensor blinded. Half a second at 10 Hz.
 const RESTART_AFTER: usize = 5;
 
+/// Localising, the most an alignment may move a sweep off its constant-velocity prediction: an
+/// AGV's speed changes by centimetres per second within a sweep (0.5 m/s² over 0.1 s moves it
+/// 5 mm; a yaw acceleration of 0.8 rad/s² turns it 8 mrad), so more means the odometry matched
+/// the scan to a look-alike place: the robot was carried elsewhere, and its odometry followed
+/// a wrong match rather than losing it.
+const MAX_INNOVATION_M: f64 = 0.2;
+/// See [`MAX_INNOVATION_M`], rad (about 3°).
+const MAX_INNOVATION_RAD: f64 = 0.05;
+
 /// The fraction of the sweep's geometric features that found a correspondence.
 pub fn match_quality(estimate: &OdometryEstimate, features: &SweepFeatures) -> f32 {
     match &estimate.alignment {
@@ -62,6 +71,18 @@ pub struct MatchHistory {
 impl MatchHistory {
     /// Sweeps remembered.
     pub const LEN: usize = 50;
+    /// Sweeps remembered before they are a yardstick.
+    pub const WARM: usize = 5;
+
+    /// Sweeps remembered so far.
+    pub fn len(&self) -> usize {
+        self.cost.len()
+    }
+
+    /// Whether none is.
+    pub fn is_empty(&self) -> bool {
+        self.cost.is_empty()
+    }
 
     /// Remembers one tracked sweep's match.
     pub fn push(&mut self, quality: f32, cost: f64) {
@@ -81,7 +102,7 @@ impl MatchHistory {
         if !cost.is_finite() {
             return false;
         }
-        if self.cost.len() < 5 {
+        if self.cost.len() < Self::WARM {
             return f64::from(quality) >= RESUME_MIN_QUALITY;
         }
         let typical_quality = quantile(&mut self.quality.clone(), 0.5);
@@ -128,6 +149,8 @@ pub struct Correction {
     pub relocalised: bool,
     /// The odometry epoch it is for (see [`Tracker::epoch`]); a stale one is ignored.
     pub epoch: u64,
+    /// The keyframe it answers, ns: a verification vouches for sweeps up to this one.
+    pub keyframe_ns: u64,
 }
 
 impl Correction {
@@ -138,6 +161,7 @@ impl Correction {
             state: MapState::Tracking,
             relocalised: false,
             epoch: 0,
+            keyframe_ns: 0,
         }
     }
 }
@@ -193,6 +217,10 @@ pub struct Tracker {
     /// The last sweep matched as usual.
     usual: bool,
     restart_at: Option<Isometry3<f64>>,
+    /// Localising: the last sweep that matched unusually; map poses wait for a verification of
+    /// a keyframe at or after it (a robot carried to a look-alike aisle matches as usual again
+    /// one sweep after the jump, and only the map can tell).
+    doubted_at: Option<u64>,
 }
 
 impl Tracker {
@@ -214,6 +242,7 @@ impl Tracker {
             doubtful: 0,
             usual: true,
             restart_at: None,
+            doubted_at: None,
         }
     }
 
@@ -242,6 +271,11 @@ impl Tracker {
         }
         self.map_state = correction.state;
         self.relocalised_pending |= correction.relocalised;
+        if correction.state == MapState::Tracking
+            && self.doubted_at.is_some_and(|t| correction.keyframe_ns >= t)
+        {
+            self.doubted_at = None;
+        }
         self.correct(correction.map_from_odom)
     }
 
@@ -250,6 +284,7 @@ impl Tracker {
     pub fn map_fix(&mut self, estimate: &OdometryEstimate) -> MapFix {
         let verified = self.map_state == MapState::Tracking
             && self.usual
+            && self.doubted_at.is_none()
             && self.restart_at.is_none()
             && matches!(
                 estimate.status,
@@ -302,7 +337,14 @@ impl Tracker {
             .filter(|(t, _)| reference_ns > t + RESUME_GAP_NS);
         let mut event = None;
         let restart = self.restart_at.take();
-        let estimate = match (known_pose, after_gap) {
+        // The constant-velocity prediction, to judge how far alignment moved the sweep (not
+        // after a gap, where the pose is predicted as held, nor before the motion is measured).
+        let predicted = (self.localising
+            && after_gap.is_none()
+            && restart.is_none()
+            && self.history.len() >= MatchHistory::WARM)
+            .then(|| self.odometry.prediction(reference_ns));
+        let mut estimate = match (known_pose, after_gap) {
             (None, _) if restart.is_some() => {
                 self.odometry = Odometry::new(&self.config);
                 let at = restart.expect("matched on is_some");
@@ -351,7 +393,18 @@ impl Tracker {
             self.history.push(quality, cost);
         }
         if self.localising {
-            event = event.or(self.watch(&estimate, quality, cost));
+            let jump = predicted.filter(|p| {
+                let innovation = p.inverse() * estimate.pose;
+                innovation.translation.vector.norm() > MAX_INNOVATION_M
+                    || innovation.rotation.angle() > MAX_INNOVATION_RAD
+            });
+            if let Some(p) = jump {
+                // The match is not the robot's motion: `odom` goes on from the prediction, as
+                // for any lost sweep, and the odometry restarts there.
+                estimate.pose = p;
+                estimate.status = TrackingStatus::Lost;
+            }
+            event = event.or(self.watch(&estimate, quality, cost, jump.is_some()));
         }
         let keyframe = match &self.keyframes {
             Some(config)
@@ -381,24 +434,30 @@ impl Tracker {
     }
 
     /// Localising: counts sweeps lost or matching unlike recent ones, and restarts the odometry
-    /// after [`RESTART_AFTER`] of them in a row.
+    /// after [`RESTART_AFTER`] of them in a row, or at once after an implausible `jumped` one.
     fn watch(
         &mut self,
         estimate: &OdometryEstimate,
         quality: f32,
         cost: f64,
+        jumped: bool,
     ) -> Option<TrackerEvent> {
         let aligned = matches!(
             estimate.status,
             TrackingStatus::Tracking | TrackingStatus::Degenerate
         );
-        self.usual = aligned && self.history.usual_match(quality, cost);
+        self.usual = aligned && !jumped && self.history.usual_match(quality, cost);
+        if !self.usual && estimate.status != TrackingStatus::Initialising {
+            self.doubted_at = Some(estimate.time_ns);
+        }
         match estimate.status {
             TrackingStatus::Initialising => self.doubtful = 0,
             _ if self.usual => self.doubtful = 0,
             _ => self.doubtful += 1,
         }
-        if self.doubtful < RESTART_AFTER {
+        // An implausible jump restarts at once: the odometry's maps now hold the scan at the
+        // wrong place, and every later sweep would match them as usual.
+        if self.doubtful < RESTART_AFTER && !jumped {
             return None;
         }
         self.doubtful = 0;
