@@ -232,6 +232,16 @@ fn runs_of_the_mapped_warehouse_localise_in_its_map() {
                 ..warehouse(25.0)
             },
         ),
+        // Carried into the look-alike aisle on the other side, turned round: the odometry
+        // matches the new place as usual one sweep after the jump.
+        (
+            "kidnapped into a look-alike aisle",
+            SimConfig {
+                start_fraction: 0.217,
+                kidnap_s: Some(15.6),
+                ..warehouse(25.0)
+            },
+        ),
     ];
     for (name, config) in runs {
         let run = localise(&site, &config);
