@@ -1,6 +1,7 @@
 //! `glintd`'s library: the pipeline and each subcommand, one module apiece, so that the
 //! end-to-end tests drive the same code the binary ships. The binary (`main.rs`) only parses
-//! the command line, sets up logging and prints errors.
+//! the command line, sets up logging and prints errors. `demo` and `sim` exist only with the
+//! `sim` feature (on by default), so a build without it does not link the simulator.
 
 /// Prints a line to stdout; a closed pipe (`glintd info … | head`) ends the program quietly
 /// instead of panicking as `println!` would.
@@ -14,6 +15,7 @@ pub mod bench_cmd;
 pub mod capture;
 pub mod config;
 pub mod decode_cmd;
+#[cfg(feature = "sim")]
 pub mod demo_cmd;
 pub mod echo_cmd;
 pub mod eval_cmd;
@@ -27,6 +29,7 @@ pub mod record_cmd;
 pub mod replay_cmd;
 pub mod run_cmd;
 pub mod signals;
+#[cfg(feature = "sim")]
 pub mod sim_cmd;
 
 /// Writes one line to stdout (see `say!`).

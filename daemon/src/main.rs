@@ -7,9 +7,11 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 use glintd::{
-    bench_cmd, decode_cmd, demo_cmd, echo_cmd, eval_cmd, info_cmd, map_cmd, posegraph_cmd,
-    record_cmd, replay_cmd, run_cmd, sim_cmd,
+    bench_cmd, decode_cmd, echo_cmd, eval_cmd, info_cmd, map_cmd, posegraph_cmd, record_cmd,
+    replay_cmd, run_cmd,
 };
+#[cfg(feature = "sim")]
+use glintd::{demo_cmd, sim_cmd};
 
 /// Glint: intensity-assisted LiDAR localisation for VLP-16 AGVs.
 #[derive(Parser, Debug)]
@@ -19,11 +21,14 @@ struct Cli {
     command: Command,
 }
 
+// Parsed once at start: the size of the largest arguments (replay's) costs nothing worth a box.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand, Debug)]
 enum Command {
     /// The live daemon: listen for the sensor, publish poses over iceoryx2 (see --config).
     Run(run_cmd::RunArgs),
     /// The whole chain on a built-in simulated warehouse: no sensor, no files, no flags needed.
+    #[cfg(feature = "sim")]
     Demo(demo_cmd::DemoArgs),
     /// Print what a capture holds: model, return mode, packets, sweeps, rpm, time span, gaps.
     Info(info_cmd::InfoArgs),
@@ -34,6 +39,7 @@ enum Command {
     /// Compare two TUM trajectories: relative drift and absolute trajectory error.
     Eval(eval_cmd::EvalArgs),
     /// Simulate a VLP-16 on a robot in a scenario: pcap, ground truth and scene description.
+    #[cfg(feature = "sim")]
     Sim(sim_cmd::SimArgs),
     /// Print the poses (or status) a running glintd publishes.
     Echo(echo_cmd::EchoArgs),
@@ -79,6 +85,7 @@ fn main() -> ExitCode {
         glint_ipc::iceoryx2::prelude::LogLevel::Error,
     );
     let result = match cli.command {
+        #[cfg(feature = "sim")]
         Command::Demo(args) => demo_cmd::run(args),
         Command::Run(args) => run_cmd::run(args),
         Command::Record(args) => record_cmd::run(args),
@@ -87,6 +94,7 @@ fn main() -> ExitCode {
         Command::Decode(args) => decode_cmd::run(args),
         Command::Replay(args) => replay_cmd::run(args),
         Command::Eval(args) => eval_cmd::run(args),
+        #[cfg(feature = "sim")]
         Command::Sim(args) => sim_cmd::run(args),
         Command::Posegraph(args) => posegraph_cmd::run(args),
         Command::Bench(args) => bench_cmd::run(args),

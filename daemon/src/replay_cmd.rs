@@ -202,10 +202,10 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     let n = timings.total.len();
     say!(
         "sweeps: {n} ({} initialising, {} tracking, {} degenerate, {} lost); {mode}",
-        statuses[0],
-        statuses[1],
-        statuses[2],
-        statuses[3],
+        statuses.initialising,
+        statuses.tracking,
+        statuses.degenerate,
+        statuses.lost,
     );
     for (name, v) in [
         ("per sweep", &timings.total),

@@ -126,7 +126,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     let summary = summary?;
     let latency = &summary.timings.latency;
     tracing::info!(
-        sweeps = summary.statuses.iter().sum::<u64>(),
+        sweeps = summary.statuses.total(),
         dropped = summary.sweeps_dropped,
         latency_median_ms = format_args!("{:.1}", latency.quantile(0.5)),
         latency_p99_ms = format_args!("{:.1}", latency.quantile(0.99)),

@@ -1,0 +1,229 @@
+//! The link between the odometry and the back end (loop closure and pose-graph optimisation)
+//! or, localising in a saved site map, the localiser in its place: keyframes one way, `map ←
+//! odom` corrections the other, and the two threads that answer. In a replay the odometry takes
+//! the answers in lockstep, so a correction applies from a sweep fixed by the data; live it never
+//! waits.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use crossbeam_channel::{Receiver, Sender, TrySendError};
+use glint_core::backend::config::BackEndConfig;
+use glint_core::backend::keyframe::Keyframe;
+use glint_core::backend::{BackEnd, BackEndStage, SiteMapHeader};
+use glint_core::config::IntensityMapConfig;
+use glint_core::localiser::{Localiser, MapState};
+use glint_core::tracker::Correction;
+
+use super::health::{recv_beating, send_beating, Heartbeats, Stage};
+use super::SlamSummary;
+
+/// Keyframes allowed to wait for the back end (live: more are dropped, counted).
+pub(super) const BACK_END_QUEUE: usize = 8;
+
+/// How the odometry waits for the back end's (or the localiser's) answers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Lockstep {
+    /// Live: never; the answers that arrived apply, in order, from whichever sweep follows.
+    Off,
+    /// Replays: each keyframe's answer is awaited when the next keyframe is handed over, so a
+    /// correction applies from a sweep fixed by the data while the back end works in parallel
+    /// with the odometry for a keyframe interval (about 1 m of travel).
+    NextKeyframe,
+    /// Replays localising: each keyframe's answer is awaited at once, so a (re)localisation
+    /// applies from the keyframe that made it.
+    Immediate,
+}
+
+/// The odometry's end of the back end or the localiser.
+pub(super) struct BackEndLink {
+    keyframes: Sender<(u64, Keyframe)>,
+    corrections: Receiver<Correction>,
+    pub(super) lockstep: Lockstep,
+    /// A keyframe was handed over and its answer not yet taken (`NextKeyframe`).
+    pending: bool,
+    /// Keyframes the back end could not take in time (live).
+    pub(super) dropped: u64,
+}
+
+impl BackEndLink {
+    pub(super) fn new(
+        keyframes: Sender<(u64, Keyframe)>,
+        corrections: Receiver<Correction>,
+        lockstep: Lockstep,
+    ) -> Self {
+        Self {
+            keyframes,
+            corrections,
+            lockstep,
+            pending: false,
+            dropped: 0,
+        }
+    }
+
+    /// Hands a keyframe of odometry epoch `epoch` over. In lockstep, returns the answer due.
+    pub(super) fn offer(
+        &mut self,
+        epoch: u64,
+        keyframe: Keyframe,
+        heartbeats: &Heartbeats,
+    ) -> Option<Correction> {
+        match self.lockstep {
+            Lockstep::NextKeyframe => {
+                let mut answer = None;
+                if self.pending {
+                    answer = Some(recv_beating(
+                        &self.corrections,
+                        heartbeats,
+                        Stage::Odometry,
+                    )?);
+                }
+                self.pending = send_beating(
+                    &self.keyframes,
+                    (epoch, keyframe),
+                    heartbeats,
+                    Stage::Odometry,
+                )
+                .is_ok();
+                answer
+            }
+            Lockstep::Immediate => {
+                send_beating(
+                    &self.keyframes,
+                    (epoch, keyframe),
+                    heartbeats,
+                    Stage::Odometry,
+                )
+                .ok()?;
+                recv_beating(&self.corrections, heartbeats, Stage::Odometry)
+            }
+            Lockstep::Off => {
+                if let Err(TrySendError::Full(_)) = self.keyframes.try_send((epoch, keyframe)) {
+                    self.dropped += 1;
+                    tracing::warn!(
+                        dropped = self.dropped,
+                        "the back end is behind: keyframe dropped"
+                    );
+                }
+                None
+            }
+        }
+    }
+
+    /// The answers sent since the last call, in order (live): each is applied, so a
+    /// relocalisation's jump is not lost behind a later answer.
+    pub(super) fn arrived(&self) -> impl Iterator<Item = Correction> + '_ {
+        self.corrections.try_iter()
+    }
+}
+
+/// Writes the back end's site map (mapping).
+#[derive(Clone)]
+pub(super) struct MapSaver {
+    pub(super) path: PathBuf,
+    /// Live: also this often while running.
+    pub(super) every: Option<Duration>,
+    pub(super) header: SiteMapHeader,
+    pub(super) intensity: IntensityMapConfig,
+}
+
+impl MapSaver {
+    /// Saves `backend`'s map crash-safely; its size in bytes.
+    pub(super) fn save(&self, backend: &BackEnd) -> Result<u64> {
+        let site_from_world = backend.site_from_world(&self.header.base_from_sensor);
+        let map = backend.site_map(&site_from_world, &self.intensity, self.header.clone());
+        let report = glint_map::save(&self.path, &map)
+            .with_context(|| format!("cannot save the site map {}", self.path.display()))?;
+        Ok(report.bytes)
+    }
+}
+
+/// The localiser's thread: locates each keyframe in the saved map and answers with the
+/// correction, until the odometry is gone.
+pub(super) fn run_localiser(
+    mut localiser: Localiser,
+    input: &Receiver<(u64, Keyframe)>,
+    output: &Sender<Correction>,
+    heartbeats: &Heartbeats,
+) {
+    while let Some((epoch, keyframe)) = recv_beating(input, heartbeats, Stage::BackEnd) {
+        let (answer, outcome) = localiser.answer(epoch, &keyframe);
+        tracing::debug!(
+            epoch,
+            state = ?outcome.state,
+            verifications = outcome.verifications,
+            "keyframe located"
+        );
+        match outcome.state {
+            MapState::Lost => {
+                tracing::warn!("the scan no longer fits the saved map: lost, relocalising");
+            }
+            MapState::Tracking if outcome.relocalised => {
+                tracing::info!(epoch, "relocalised in the saved map");
+            }
+            _ => {}
+        }
+        if output.send(answer).is_err() {
+            break;
+        }
+    }
+}
+
+/// The back end's thread: adds each keyframe to the pose graph (closing loops, saving the site
+/// map now and then when live) and answers with the correction, until the odometry is gone; then
+/// the back end itself and its report.
+pub(super) fn run_backend(
+    config: &BackEndConfig,
+    saver: Option<&MapSaver>,
+    input: &Receiver<(u64, Keyframe)>,
+    output: &Sender<Correction>,
+    heartbeats: &Heartbeats,
+) -> (BackEnd, SlamSummary) {
+    let mut backend = BackEnd::new(config);
+    let mut report = SlamSummary::default();
+    let mut saved = Instant::now();
+    while let Some((_, keyframe)) = recv_beating(input, heartbeats, Stage::BackEnd) {
+        let mut last = Instant::now();
+        let outcome = backend.add_keyframe(keyframe, |stage| {
+            let now = Instant::now();
+            let ms = (now - last).as_secs_f64() * 1e3;
+            last = now;
+            heartbeats.beat(Stage::BackEnd);
+            match stage {
+                BackEndStage::Descriptor => report.descriptor_ms.push(ms),
+                BackEndStage::Search => report.search_ms.push(ms),
+                BackEndStage::Verify => report.verify_ms.push(ms),
+                BackEndStage::Optimize => report.optimize_ms.push(ms),
+            }
+        });
+        if let Some(l) = &outcome.accepted {
+            tracing::info!(
+                keyframe = l.query,
+                closes_on = l.candidate,
+                similarity = l.similarity,
+                "loop closed"
+            );
+        }
+        if output.send(Correction::slam(backend.correction())).is_err() {
+            break;
+        }
+        // Periodic saves happen here, between keyframes, off the pose path: the odometry never
+        // waits for the back end live.
+        if let Some(s) = saver.filter(|s| s.every.is_some_and(|e| saved.elapsed() >= e)) {
+            heartbeats.beat(Stage::BackEnd);
+            match s.save(&backend) {
+                Ok(bytes) => tracing::info!(path = %s.path.display(), bytes, "site map saved"),
+                Err(e) => tracing::error!("{e:#}"),
+            }
+            saved = Instant::now();
+        }
+    }
+    // Floor edges since the last optimisation: into the final trajectory too.
+    let start = Instant::now();
+    if backend.finish().is_some() {
+        report.optimize_ms.push(start.elapsed().as_secs_f64() * 1e3);
+    }
+    report.stats = backend.stats();
+    (backend, report)
+}

@@ -1,0 +1,175 @@
+//! The odometry stage: each sweep's features registered by core's `Tracker`, keyframes handed
+//! to the back end (or the localiser) and its corrections applied, the run's map grown when no
+//! back end rebuilds it, and the estimate passed on to the publishing end with its timing.
+
+use std::time::Instant;
+
+use crossbeam_channel::{Receiver, Sender};
+use glint_core::odometry::{OdometryEstimate, Stage as OdometryStep, TrackingStatus};
+use glint_core::tracker::{MapFix, Tracker, TrackerEvent};
+use glint_core::trajectory::{interpolate, StampedPose};
+use glint_core::world_map::WorldMap;
+use nalgebra::{Isometry3, Vector3};
+
+use super::backend_link::{BackEndLink, Lockstep};
+use super::front_end::Featured;
+use super::health::{recv_beating, send_beating, Heartbeats, Stage};
+
+/// A sweep's estimate on its way to the publisher.
+pub(super) struct Estimated {
+    pub(super) estimate: OdometryEstimate,
+    pub(super) quality: f32,
+    pub(super) received: Instant,
+    pub(super) stage_ms: StageTimes,
+    pub(super) counts: FeatureCounts,
+    pub(super) departure: Option<Vector3<f64>>,
+    /// `map ← odom` as of this sweep.
+    pub(super) map_from_odom: Isometry3<f64>,
+    /// The correction changed with this sweep.
+    pub(super) loop_closed: bool,
+    /// How far the map pose is to be trusted.
+    pub(super) map_fix: MapFix,
+}
+
+/// Time one sweep spent in each step, ms.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct StageTimes {
+    /// Calibration and features.
+    pub(super) front_end: f64,
+    /// Prediction and deskew.
+    pub(super) deskew: f64,
+    /// Scan-to-map alignment.
+    pub(super) align: f64,
+    /// Map update.
+    pub(super) map_update: f64,
+}
+
+impl StageTimes {
+    /// Front end and odometry together.
+    pub(super) fn total(&self) -> f64 {
+        self.front_end + self.deskew + self.align + self.map_update
+    }
+}
+
+/// One sweep's features.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct FeatureCounts {
+    pub(super) edges: usize,
+    pub(super) planes: usize,
+    pub(super) intensity: usize,
+}
+
+/// What the odometry leaves at the end of a run.
+pub(super) struct OdometryOutcome {
+    /// The run's map grown from the odometry's poses, when asked for and no back end rebuilds
+    /// it.
+    pub(super) world: Option<WorldMap>,
+    /// Local map sizes (edge points, plane points, intensity cells).
+    pub(super) map_sizes: (usize, usize, usize),
+    /// Keyframes the back end could not take in time (live).
+    pub(super) keyframes_dropped: u64,
+}
+
+/// The odometry's thread: registers each sweep until the front end is gone.
+pub(super) fn run_odometry(
+    mut tracker: Tracker,
+    known: Option<Vec<StampedPose>>,
+    map_voxel: Option<f32>,
+    mut back_end: Option<BackEndLink>,
+    input: &Receiver<Featured>,
+    output: &Sender<Estimated>,
+    heartbeats: &Heartbeats,
+) -> OdometryOutcome {
+    let mut world = map_voxel.map(WorldMap::new);
+    while let Some(featured) = recv_beating(input, heartbeats, Stage::Odometry) {
+        let features = &featured.features;
+        let start = Instant::now();
+        // When each step ended.
+        let (mut deskewed, mut aligned, mut map_updated) = (start, start, start);
+        let hook = |step| {
+            let end = match step {
+                OdometryStep::Deskew => &mut deskewed,
+                OdometryStep::Align => &mut aligned,
+                OdometryStep::MapUpdate => &mut map_updated,
+            };
+            *end = Instant::now();
+        };
+        let known_pose = known
+            .as_deref()
+            .and_then(|gt| interpolate(gt, features.reference_ns));
+        let tracked = tracker.track(features, known_pose, hook);
+        match tracked.event {
+            Some(TrackerEvent::Resumed { quality, cost }) => {
+                tracing::info!(quality, cost, "tracking resumed after a gap in the data");
+            }
+            Some(TrackerEvent::Restarted { epoch }) => tracing::warn!(
+                epoch,
+                "sweeps stopped matching the odometry's map (moved, or blinded): \
+                 odometry restarted, relocalising"
+            ),
+            Some(TrackerEvent::LostAfterGap { quality, cost }) => tracing::warn!(
+                quality,
+                cost,
+                "after a gap in the data the scan does not match the map: lost \
+                 (trying each sweep from the last good pose)"
+            ),
+            None => {}
+        }
+        let estimate = tracked.estimate;
+        tracing::debug!(
+            quality = tracked.quality,
+            cost = tracked.cost,
+            "sweep registered"
+        );
+        if let Some(map) = world.as_mut() {
+            if estimate.status != TrackingStatus::Lost {
+                for (p, eta) in tracker.map_points(features, &estimate.pose) {
+                    map.insert(&p, eta);
+                }
+            }
+        }
+        let previous_correction = tracker.correction();
+        if let Some(link) = back_end.as_mut() {
+            if let Some(keyframe) = tracked.keyframe {
+                if let Some(c) = link.offer(tracker.epoch(), keyframe, heartbeats) {
+                    tracker.apply(&c);
+                }
+            }
+            if link.lockstep == Lockstep::Off {
+                for c in link.arrived() {
+                    tracker.apply(&c);
+                }
+            }
+        }
+        let map_fix = tracker.map_fix(&estimate);
+        let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
+        let message = Estimated {
+            map_from_odom: tracker.correction(),
+            loop_closed: tracker.correction() != previous_correction,
+            map_fix,
+            quality: tracked.quality,
+            received: featured.received,
+            stage_ms: StageTimes {
+                front_end: featured.front_end_ms,
+                deskew: ms(start, deskewed),
+                align: ms(deskewed, aligned),
+                map_update: ms(aligned, map_updated),
+            },
+            counts: FeatureCounts {
+                edges: features.edges.len(),
+                planes: features.planes.len(),
+                intensity: features.intensity.len(),
+            },
+            departure: tracked.departure,
+            estimate,
+        };
+        if send_beating(output, message, heartbeats, Stage::Odometry).is_err() {
+            break;
+        }
+    }
+    OdometryOutcome {
+        world,
+        map_sizes: tracker.odometry().map_sizes(),
+        keyframes_dropped: back_end.map_or(0, |l| l.dropped),
+    }
+}

@@ -1,0 +1,211 @@
+//! The receive stage: packets from a capture (paced, waiting for the front end so a replay
+//! processes every sweep) or from the sensor's sockets (never waiting: a sweep that finds the
+//! front end's queue full is dropped whole and counted), closed into sweeps for the front end.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::Result;
+use crossbeam_channel::{Receiver, RecvTimeoutError, SendTimeoutError, Sender, TrySendError};
+use glint_driver::udp::{host_now_ns, Datagram, UdpCounters, UdpSource};
+use glint_driver::{PacketKind, Ports, SensorStream, StreamConfig, Sweep, SweepRecycler};
+
+use super::health::{Heartbeats, Stage, IDLE_BEAT};
+use super::Pace;
+use crate::capture::{replay_stream, CaptureReport};
+
+/// Counters the receive thread shares with the reporter.
+#[derive(Debug, Default)]
+pub(super) struct ReceiveCounters {
+    pub(super) packets: AtomicU64,
+    pub(super) packets_missing: AtomicU64,
+    pub(super) malformed: AtomicU64,
+    pub(super) sweeps_dropped: AtomicU64,
+    pub(super) silent: AtomicBool,
+}
+
+impl ReceiveCounters {
+    fn update(&self, stream: &SensorStream, udp: Option<&UdpCounters>) {
+        let s = stream.stats();
+        let (udp_dropped, wrong_length) = udp.map_or((0, 0), |u| {
+            (
+                u.dropped.load(Ordering::Relaxed),
+                u.wrong_length.load(Ordering::Relaxed),
+            )
+        });
+        self.packets
+            .store(s.data_packets + s.position_packets, Ordering::Relaxed);
+        self.packets_missing
+            .store(s.packets_missing + udp_dropped, Ordering::Relaxed);
+        self.malformed
+            .store(s.truncated + s.malformed + wrong_length, Ordering::Relaxed);
+    }
+}
+
+/// A closed sweep on its way to the front end.
+pub(super) struct Arrival {
+    pub(super) sweep: Sweep,
+    pub(super) recycler: Option<SweepRecycler>,
+    /// When its last packet was received.
+    pub(super) received: Instant,
+}
+
+/// The receive stage of a replay: reads the capture at `pace`, waiting for the front end
+/// rather than dropping.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn read_capture(
+    path: &Path,
+    ports: Ports,
+    stream: StreamConfig,
+    pace: Pace,
+    stop: &AtomicBool,
+    out: &Sender<Arrival>,
+    heartbeats: &Heartbeats,
+    counters: &ReceiveCounters,
+) -> Result<CaptureReport> {
+    let mut clock: Option<(u64, Instant)> = None;
+    let downstream_gone = std::cell::Cell::new(false);
+    replay_stream(
+        path,
+        ports,
+        stream,
+        |record_ns, stream| {
+            heartbeats.beat(Stage::Receive);
+            if stop.load(Ordering::Relaxed) || downstream_gone.get() {
+                return false;
+            }
+            if let Pace::Factor(f) = pace {
+                let (t0, w0) = *clock.get_or_insert((record_ns, Instant::now()));
+                let due =
+                    w0 + Duration::from_secs_f64(record_ns.saturating_sub(t0) as f64 * 1e-9 / f);
+                // Sleep in short steps so a stop request is seen promptly.
+                while let Some(wait) = due.checked_duration_since(Instant::now()) {
+                    if stop.load(Ordering::Relaxed) {
+                        return false;
+                    }
+                    heartbeats.beat(Stage::Receive);
+                    std::thread::sleep(wait.min(IDLE_BEAT));
+                }
+            }
+            counters.update(stream, None);
+            true
+        },
+        |sweep, stream| {
+            let arrival = Arrival {
+                sweep,
+                recycler: stream.recycler(),
+                received: Instant::now(),
+            };
+            // Blocking: a replay processes every sweep. Beat while waiting, so a slow stage
+            // behind is not taken for a stuck reader.
+            let mut pending = arrival;
+            loop {
+                match out.send_timeout(pending, IDLE_BEAT) {
+                    Ok(()) => break,
+                    Err(SendTimeoutError::Timeout(a)) => {
+                        heartbeats.beat(Stage::Receive);
+                        pending = a;
+                    }
+                    Err(SendTimeoutError::Disconnected(_)) => {
+                        downstream_gone.set(true);
+                        break;
+                    }
+                }
+            }
+            Ok(())
+        },
+    )
+}
+
+/// The receive stage live: datagrams from the socket threads into the stream; closed sweeps
+/// offered to the front end without waiting.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn receive_live(
+    source: UdpSource,
+    datagrams: &Receiver<Datagram>,
+    stream: StreamConfig,
+    silence: Duration,
+    stop: &AtomicBool,
+    out: &Sender<Arrival>,
+    heartbeats: &Heartbeats,
+    counters: &ReceiveCounters,
+) -> Result<()> {
+    let udp = source.counters();
+    let mut stream = SensorStream::new(stream);
+    let mut last_data = Instant::now();
+    let mut silent_since: Option<Instant> = None;
+    let mut logged_errors = 0u64;
+    let mut last_drop_log: Option<Instant> = None;
+    while !stop.load(Ordering::Relaxed) {
+        heartbeats.beat(Stage::Receive);
+        let datagram = match datagrams.recv_timeout(Duration::from_millis(50)) {
+            Ok(d) => Some(d),
+            Err(RecvTimeoutError::Timeout) => None,
+            Err(RecvTimeoutError::Disconnected) => break,
+        };
+        if let Some(d) = &datagram {
+            let result = match d.kind {
+                PacketKind::Data => {
+                    last_data = Instant::now();
+                    stream.push_data(d.payload(), d.receive_ns)
+                }
+                PacketKind::Position => stream.push_position(d.payload()),
+            };
+            if let Err(e) = result {
+                // Garbage on the port or a damaged packet: counted by the stream, logged
+                // sparingly (the first few, then every thousandth).
+                logged_errors += 1;
+                if logged_errors <= 5 || logged_errors.is_multiple_of(1000) {
+                    tracing::warn!(count = logged_errors, "packet refused: {e}");
+                }
+            }
+            counters.update(&stream, Some(&udp));
+        }
+        match (silent_since, last_data.elapsed() > silence) {
+            (None, true) => {
+                silent_since = Some(last_data);
+                counters.silent.store(true, Ordering::Relaxed);
+                tracing::warn!(
+                    "no data from the sensor for {:.1} s (cable, power or network?)",
+                    silence.as_secs_f64()
+                );
+            }
+            (Some(since), false) => {
+                silent_since = None;
+                counters.silent.store(false, Ordering::Relaxed);
+                tracing::info!(
+                    "sensor data resumed after {:.1} s of silence",
+                    since.elapsed().as_secs_f64()
+                );
+            }
+            _ => {}
+        }
+        while let Some(sweep) = stream.take_sweep() {
+            let behind = Duration::from_nanos(host_now_ns().saturating_sub(sweep.last_receive_ns));
+            let arrival = Arrival {
+                sweep,
+                recycler: stream.recycler(),
+                received: Instant::now()
+                    .checked_sub(behind)
+                    .unwrap_or_else(Instant::now),
+            };
+            match out.try_send(arrival) {
+                Ok(()) => {}
+                Err(TrySendError::Full(a)) => {
+                    let dropped = counters.sweeps_dropped.fetch_add(1, Ordering::Relaxed) + 1;
+                    if last_drop_log.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
+                        tracing::warn!(dropped, "the pipeline is behind: sweep dropped");
+                        last_drop_log = Some(Instant::now());
+                    }
+                    if let Some(r) = &a.recycler {
+                        r.recycle(a.sweep);
+                    }
+                }
+                Err(TrySendError::Disconnected(_)) => return Ok(()),
+            }
+        }
+    }
+    source.stop();
+    Ok(())
+}
