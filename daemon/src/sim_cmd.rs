@@ -222,7 +222,7 @@ mod tests {
     }
 
     #[test]
-    fn defaults_match_the_issue() {
+    fn defaults_are_the_documented_ones() {
         let a = parse(&["warehouse"]);
         assert_eq!(
             (a.seed, a.seconds, a.rpm, a.data_port, a.position_port),

@@ -180,7 +180,7 @@ fn in_the_corridor_intensity_holds_the_axis_geometry_cannot() {
     let (intensity, geometry) = (along(&pairs), along(&pairs_without));
     let drift = relative_errors(&pairs, &WAREHOUSE_LENGTHS).expect("segments fit");
     eprintln!("corridor seed 14: drift along the axis {intensity:.2} % with intensity, {geometry:.2} % geometry only; with intensity {drift}");
-    // The floor for the corridor: 1 %, in every direction.
+    // The corridor's floor: 1 %, in every direction.
     assert!(drift.overall.translation_pct <= 1.0, "{drift}");
     assert!(
         geometry >= 2.0 * intensity,
