@@ -25,6 +25,12 @@ const RESUME_MIN_QUALITY: f64 = 0.5;
 const RESUME_QUALITY_RATIO: f64 = 0.8;
 /// ... and the mean robust cost per residual at most this multiple of the usual one.
 const RESUME_COST_RATIO: f64 = 2.0;
+/// Localising, a sweep whose residual is this many times the usual one did not see the place
+/// the odometry thinks it is at: the robot was carried off (the sweep at the jump into a
+/// look-alike aisle: 6.8 times; ordinary sweeps stay within 2), and from the next sweep on its
+/// odometry may match the new place to the old one as usual. So the odometry restarts and the
+/// robot is relocalised globally, where look-alike places are refused as ambiguous.
+const JUMP_COST_RATIO: f64 = 4.0;
 
 /// Localising in a saved map, consecutive sweeps lost or matching unlike recent ones after
 /// which the odometry restarts at its last pose and the localiser relocalises: the robot was
@@ -92,6 +98,15 @@ impl MatchHistory {
         }
         self.quality.push(f64::from(quality));
         self.cost.push(cost);
+    }
+
+    /// Whether a sweep's residual is [`JUMP_COST_RATIO`] times the usual one or more (false
+    /// until enough sweeps are remembered).
+    pub fn striking(&self, cost: f64) -> bool {
+        if self.cost.len() < Self::WARM || !cost.is_finite() {
+            return false;
+        }
+        cost >= JUMP_COST_RATIO * quantile(&mut self.cost.clone(), 0.5)
     }
 
     /// Whether a sweep matches the map about as well as tracked sweeps do: a wrong alignment
@@ -397,6 +412,7 @@ impl Tracker {
                 let innovation = p.inverse() * estimate.pose;
                 innovation.translation.vector.norm() > MAX_INNOVATION_M
                     || innovation.rotation.angle() > MAX_INNOVATION_RAD
+                    || self.history.striking(cost)
             });
             if let Some(p) = jump {
                 // The match is not the robot's motion: `odom` goes on from the prediction, as

@@ -18,7 +18,7 @@ use glint_core::site_map::SiteMap;
 use glint_core::tracker::Tracker;
 use glint_core::trajectory::StampedPose;
 use glint_sim::{Scenario, SimConfig, Simulation};
-use glint_tests::{dense_groundtruth, for_each_scan};
+use glint_tests::{dense_groundtruth, for_each_scan, sensor_pose};
 use nalgebra::Isometry3;
 
 /// A mapped site: the map, and the scene ← map transform from the mapping run's first pose.
@@ -145,7 +145,22 @@ fn localise(site: &Site, sim_config: &SimConfig) -> Localised {
             after_ns: k.after_ns,
         })
         .collect();
-    let groundtruth = dense_groundtruth(&sim, &all);
+    // Dense ground truth as the simulator writes it: nothing inside a jump, both its ends.
+    let mut groundtruth: Vec<StampedPose> = dense_groundtruth(&sim, &all)
+        .into_iter()
+        .filter(|g| {
+            !kidnaps
+                .iter()
+                .any(|j| j.before_ns < g.time_ns && g.time_ns < j.after_ns)
+        })
+        .chain(kidnaps.iter().flat_map(|j| {
+            [j.before_ns, j.after_ns].map(|t| StampedPose {
+                time_ns: t,
+                pose: sensor_pose(&sim, t),
+            })
+        }))
+        .collect();
+    groundtruth.sort_by_key(|g| g.time_ns);
     let report = fixed_frame_errors(&verified, &groundtruth, &site.scene_from_map, &kidnaps)
         .unwrap_or(FixedFrameReport {
             poses: 0,
