@@ -2,7 +2,8 @@
  * glint.h - C and C++ interface to Glint's poses (libglint).
  *
  * glintd publishes the robot's pose and its own health over iceoryx2 0.10.0 shared memory, on
- * the services glint/<domain>/{odom,map,predicted,status}; ipc/README.md in the Glint sources is
+ * the services glint/<domain>/{odom,map,predicted,status}, and takes initial-pose hints on
+ * glint/<domain>/initial_pose; ipc/README.md in the Glint sources is
  * the contract (layouts, units, frames, flags, behaviour across daemon restarts). This header
  * mirrors its payload structs byte for byte: the static assertions below check sizes and offsets
  * at compile time, and Glint's tests compare them with the Rust structs.
@@ -13,12 +14,14 @@
  *  - Every function returns a result code (GLINT_OK, GLINT_NO_DATA, GLINT_TIMEOUT, or a
  *    negative GLINT_ERR_*), except the two functions returning strings, which cannot fail.
  *  - After any call, glint_*_last_error(handle) says why it did not return GLINT_OK ("" after
- *    GLINT_OK). The text stays valid until the next call on that handle.
+ *    GLINT_OK). The text stays valid until the next call on that handle. The one call without
+ *    a handle, glint_send_initial_pose, writes its message into a buffer of the caller's.
  *  - A handle is used by one thread at a time (it may move between threads) and never after
  *    close. Different handles are independent: libglint keeps no global state of its own
  *    (iceoryx2 underneath reads its configuration file once per process).
  *  - Nothing blocks except the *_wait functions, which sleep on the event service glintd
- *    notifies after every message (no polling while connected).
+ *    notifies after every message (no polling while connected), and glint_send_initial_pose
+ *    (0.5 s, see there).
  *  - Strings are NUL-terminated ASCII. Domains are 1-64 characters from [A-Za-z0-9_-].
  */
 #ifndef GLINT_H
@@ -202,6 +205,28 @@ const char *glint_status_subscriber_last_error(const glint_status_subscriber *su
 
 /** Releases the handle; as glint_pose_subscriber_close. */
 int glint_status_subscriber_close(glint_status_subscriber *sub);
+
+/* ---- Initial-pose hint ------------------------------------------------------------------- */
+
+/** iceoryx2 type name of the hint payload (ipc/README.md, "InitialPose"). */
+#define GLINT_INITIAL_POSE_TYPE_NAME "glint::InitialPoseV1"
+
+/** Tells glintd roughly where the robot is in the saved site map, so that its localiser searches
+ *  near there instead of the whole map: base_link at (x, y) metres on the floor of the map
+ *  frame, heading yaw radians about its z axis (0 = facing +x), within about position_sigma
+ *  metres (one standard deviation; 0 = unknown).
+ *
+ *  One-shot: opens glint/<domain>/initial_pose (created by glintd; never created here), sends
+ *  the hint stamped with the current time, keeps the port open 0.5 s so glintd takes it, closes.
+ *  Blocks for those 0.5 s on success; fails at once otherwise.
+ *
+ *  Returns GLINT_OK; GLINT_ERR_INVALID_ARGUMENT for a bad domain, a non-finite number or a
+ *  negative position_sigma (nothing is sent); GLINT_ERR_NOT_RUNNING when no glintd runs with
+ *  this domain; GLINT_ERR_INCOMPATIBLE or GLINT_ERR_IPC otherwise. Why it failed is written to
+ *  error (NUL-terminated, truncated to error_size bytes; "" on GLINT_OK) unless error is NULL
+ *  or error_size is 0. Needs no handle and keeps no state. */
+int glint_send_initial_pose(const char *domain, double x, double y, double yaw,
+                            double position_sigma, char *error, size_t error_size);
 
 /* ---- Codes --------------------------------------------------------------------------------- */
 

@@ -12,7 +12,10 @@ use std::error::Error as _;
 use glint_ipc::iceoryx2::port::listener::ListenerWaitError;
 use glint_ipc::iceoryx2::service::builder::event::EventOpenError;
 use glint_ipc::iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
-use glint_ipc::{DomainError, ReceiveError, SubscribeError, WaitError};
+use glint_ipc::{
+    DomainError, InitialPoseOpenError, InitialPoseSendError, ReceiveError, SendInitialPoseError,
+    SubscribeError, WaitError,
+};
 use thiserror::Error;
 
 /// Success: the caller's struct holds a new message.
@@ -107,6 +110,9 @@ pub enum CapiError {
     /// Waiting for a message failed.
     #[error(transparent)]
     Wait(#[from] WaitError),
+    /// Sending an initial-pose hint failed (an invalid hint, no daemon, or iceoryx2).
+    #[error(transparent)]
+    SendInitialPose(#[from] SendInitialPoseError),
     /// A panic inside the library, caught at the C boundary.
     #[error("internal error (a bug in libglint): {0}")]
     Panic(String),
@@ -129,6 +135,7 @@ impl CapiError {
                 ..
             }) => GLINT_ERR_INTERRUPTED,
             Self::Wait(_) => GLINT_ERR_IPC,
+            Self::SendInitialPose(e) => send_initial_pose_code(e),
             Self::Panic(_) => GLINT_ERR_INTERNAL,
         }
     }
@@ -179,6 +186,38 @@ fn subscribe_code(e: &SubscribeError) -> c_int {
                 | E::IncompatibleNotifierDeadEvent,
             ..
         } => GLINT_ERR_INCOMPATIBLE,
+        _ => GLINT_ERR_IPC,
+    }
+}
+
+/// The same split for a hint: refused as invalid, no daemon, another contract, anything else.
+fn send_initial_pose_code(e: &SendInitialPoseError) -> c_int {
+    use EventOpenError as E;
+    use InitialPoseOpenError as O;
+    use PublishSubscribeOpenError as P;
+    match e {
+        SendInitialPoseError::Send(InitialPoseSendError::Invalid(_)) => GLINT_ERR_INVALID_ARGUMENT,
+        SendInitialPoseError::Open(O::NotRunning { .. }) => GLINT_ERR_NOT_RUNNING,
+        SendInitialPoseError::Open(
+            O::Service {
+                source:
+                    P::IncompatibleTypes
+                    | P::IncompatibleMessagingPattern
+                    | P::IncompatibleAttributes
+                    | P::IncompatibleOverflowBehavior,
+                ..
+            }
+            | O::EventService {
+                source:
+                    E::IncompatibleMessagingPattern
+                    | E::IncompatibleAttributes
+                    | E::IncompatibleDeadline
+                    | E::IncompatibleNotifierCreatedEvent
+                    | E::IncompatibleNotifierDroppedEvent
+                    | E::IncompatibleNotifierDeadEvent,
+                ..
+            },
+        ) => GLINT_ERR_INCOMPATIBLE,
         _ => GLINT_ERR_IPC,
     }
 }

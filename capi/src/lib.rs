@@ -1,6 +1,6 @@
 //! libglint: Glint's C interface. C and C++ controllers subscribe to `glintd`'s poses and
-//! status over iceoryx2 (exactly 0.10.0, through glint-ipc) with the functions declared in
-//! `include/glint.h`.
+//! status, and send it initial-pose hints, over iceoryx2 (exactly 0.10.0, through glint-ipc)
+//! with the functions declared in `include/glint.h`.
 //!
 //! This file is the FFI boundary and the only place with `unsafe`: it turns C pointers into
 //! references, catches every panic before it can unwind into C, and turns results into codes and
@@ -18,7 +18,10 @@ use core::ffi::{c_char, c_int, CStr};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::time::Duration;
 
-use glint_ipc::{Domain, Pose, PoseStream, PoseSubscriber, Status, StatusSubscriber};
+use glint_ipc::{
+    send_initial_pose, Domain, InitialPose, Pose, PoseStream, PoseSubscriber, Status,
+    StatusSubscriber,
+};
 
 use crate::error::{
     code_name, CapiError, GLINT_ERR_INTERNAL, GLINT_ERR_INVALID_ARGUMENT, GLINT_NO_DATA, GLINT_OK,
@@ -321,4 +324,49 @@ pub unsafe extern "C" fn glint_status_subscriber_close(sub: *mut StatusHandle) -
 #[no_mangle]
 pub extern "C" fn glint_code_name(code: c_int) -> *const c_char {
     code_name(code).as_ptr()
+}
+
+/// See `glint_send_initial_pose` in glint.h: one hint, sent as a one-shot tool does (open, send,
+/// keep the port 0.5 s so glintd takes it, close). No handle, so the message goes to the
+/// caller's buffer.
+///
+/// # Safety
+/// `domain` is null or a NUL-terminated string; `error` is null or writable for `error_size`
+/// bytes.
+#[no_mangle]
+pub unsafe extern "C" fn glint_send_initial_pose(
+    domain: *const c_char,
+    x: f64,
+    y: f64,
+    yaw: f64,
+    position_sigma: f64,
+    error: *mut c_char,
+    error_size: usize,
+) -> c_int {
+    let result = guarded(|| {
+        // SAFETY: the string contract is this function's own, passed on unchanged.
+        let domain = domain_arg(unsafe { c_str(domain, "domain") })?;
+        let now_ns = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX));
+        let hint = InitialPose::on_floor(now_ns, x, y, yaw, position_sigma);
+        send_initial_pose(&domain, &hint)?;
+        Ok(())
+    })
+    .unwrap_or_else(|panic| Err(CapiError::Panic(panic)));
+    let (code, message) = match result {
+        Ok(()) => (GLINT_OK, String::new()),
+        Err(e) => (e.code(), e.message()),
+    };
+    if !error.is_null() && error_size > 0 {
+        // Truncated to the buffer and always NUL-terminated, as snprintf does.
+        let len = message.len().min(error_size - 1);
+        // SAFETY: `error` is non-null and writable for `error_size` bytes (caller's contract);
+        // `len + 1 <= error_size` bytes are written, and the source is a live Rust string.
+        unsafe {
+            core::ptr::copy_nonoverlapping(message.as_ptr().cast::<c_char>(), error, len);
+            error.add(len).write(0);
+        }
+    }
+    code
 }

@@ -20,6 +20,7 @@ pub mod demo_cmd;
 pub mod echo_cmd;
 pub mod eval_cmd;
 pub mod info_cmd;
+pub mod initial_pose_cmd;
 pub mod map_cmd;
 pub mod outputs;
 pub mod pipeline;

@@ -7,8 +7,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 use glintd::{
-    bench_cmd, decode_cmd, echo_cmd, eval_cmd, info_cmd, map_cmd, posegraph_cmd, record_cmd,
-    replay_cmd, run_cmd,
+    bench_cmd, decode_cmd, echo_cmd, eval_cmd, info_cmd, initial_pose_cmd, map_cmd,
+    posegraph_cmd, record_cmd, replay_cmd, run_cmd,
 };
 #[cfg(feature = "sim")]
 use glintd::{demo_cmd, sim_cmd};
@@ -43,6 +43,8 @@ enum Command {
     Sim(sim_cmd::SimArgs),
     /// Print the poses (or status) a running glintd publishes.
     Echo(echo_cmd::EchoArgs),
+    /// Send a running glintd a hint of where the robot is in the site map: X Y YAW (m, m, rad).
+    InitialPose(initial_pose_cmd::InitialPoseArgs),
     /// Capture the sensor's packets into a pcap for later replay.
     Record(record_cmd::RecordArgs),
     /// Optimise a g2o pose graph: initial and final cost, iterations, time.
@@ -90,6 +92,7 @@ fn main() -> ExitCode {
         Command::Run(args) => run_cmd::run(args),
         Command::Record(args) => record_cmd::run(args),
         Command::Echo(args) => echo_cmd::run(args),
+        Command::InitialPose(args) => initial_pose_cmd::run(args),
         Command::Info(args) => info_cmd::run(args),
         Command::Decode(args) => decode_cmd::run(args),
         Command::Replay(args) => replay_cmd::run(args),

@@ -2,26 +2,33 @@
 //! subscriber wrappers over iceoryx2 (exactly 0.10.0).
 //!
 //! The daemon creates one [`PosePublisher`] per domain at start; consumers open a
-//! [`PoseSubscriber`] or [`StatusSubscriber`]. Consumers in other languages read the same bytes:
-//! `ipc/README.md` states the byte layout, names and settings once, and `tests/layout.rs` checks
-//! the layout against it.
+//! [`PoseSubscriber`] or [`StatusSubscriber`]. Initial-pose hints flow the other way: the daemon
+//! creates an [`InitialPoseSubscriber`], consumers open an [`InitialPosePublisher`]. Consumers in
+//! other languages read the same bytes: `ipc/README.md` states the byte layout, names and
+//! settings once, and `tests/layout.rs` checks the layout against it.
 //!
 //! | module | owns |
 //! | --- | --- |
-//! | [`payload`] | [`Pose`], [`Status`], [`StatusFlags`], [`Frame`] — the wire structs |
+//! | [`payload`] | [`Pose`], [`Status`], [`InitialPose`], [`StatusFlags`], [`Frame`] — the wire structs |
 //! | [`names`] | [`Domain`] validation and the `glint/<domain>/<stream>[/event]` names |
 //! | [`settings`] | history, buffer, overflow and port limits of the services |
 //! | [`publisher`] | [`PosePublisher`] (the daemon's side) |
 //! | [`subscriber`] | [`PoseSubscriber`], [`StatusSubscriber`] (the consumers' side) |
+//! | [`initial_pose`] | hints, roles reversed: [`InitialPoseSubscriber`] (the daemon's side), [`InitialPosePublisher`], [`send_initial_pose`] |
 
+pub mod initial_pose;
 pub mod names;
 pub mod payload;
 pub mod publisher;
 pub mod settings;
 pub mod subscriber;
 
+pub use initial_pose::{
+    send_initial_pose, InitialPoseCreateError, InitialPoseOpenError, InitialPosePublisher,
+    InitialPoseSendError, InitialPoseSubscriber, SendInitialPoseError,
+};
 pub use names::{Domain, DomainError, PoseStream, Stream};
-pub use payload::{Frame, Pose, Status, StatusFlags};
+pub use payload::{Frame, InitialPose, InitialPoseError, Pose, Status, StatusFlags};
 pub use publisher::{
     DeadNodeCleanup, PosePublisher, PublishError, PublisherError, UpdateConnectionsError,
 };

@@ -112,17 +112,21 @@ impl PoseStream {
     pub const ALL: [Self; 3] = [Self::Odom, Self::Map, Self::Predicted];
 }
 
-/// Every stream the daemon publishes: the three pose streams and the status stream.
+/// Every stream of a domain: the three pose streams and the status stream, which the daemon
+/// publishes, and `initial_pose`, which it subscribes to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Stream {
     /// A pose stream.
     Pose(PoseStream),
     /// `status`: daemon health, [`Status`](crate::Status).
     Status,
+    /// `initial_pose`: hints of where the robot is in the site map,
+    /// [`InitialPose`](crate::InitialPose); consumers publish, the daemon subscribes.
+    InitialPose,
 }
 
 impl Stream {
-    /// Every stream.
+    /// Every stream the daemon publishes (not [`Stream::InitialPose`], which it receives).
     pub const ALL: [Self; 4] = [
         Self::Pose(PoseStream::Odom),
         Self::Pose(PoseStream::Map),
@@ -137,6 +141,7 @@ impl Stream {
             Self::Pose(PoseStream::Map) => "map",
             Self::Pose(PoseStream::Predicted) => "predicted",
             Self::Status => "status",
+            Self::InitialPose => "initial_pose",
         }
     }
 }
@@ -165,6 +170,14 @@ mod tests {
             "glint/agv-07_a/odom"
         );
         assert_eq!(d.service_name(Stream::Status), "glint/agv-07_a/status");
+        assert_eq!(
+            d.service_name(Stream::InitialPose),
+            "glint/agv-07_a/initial_pose"
+        );
+        assert_eq!(
+            d.event_service_name(Stream::InitialPose),
+            "glint/agv-07_a/initial_pose/event"
+        );
         assert_eq!(
             d.event_service_name(PoseStream::Predicted.into()),
             "glint/agv-07_a/predicted/event"

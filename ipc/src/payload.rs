@@ -1,4 +1,5 @@
-//! The wire payloads: [`Pose`] and [`Status`], the [`StatusFlags`] bitfield and the [`Frame`] code.
+//! The wire payloads: [`Pose`] and [`Status`] (published by the daemon), [`InitialPose`] (sent to
+//! it), the [`StatusFlags`] bitfield and the [`Frame`] code.
 //!
 //! These structs *are* the shared-memory contract with every consumer, in any language. Each is
 //! `#[repr(C)]`, fixed-size, pointer-free, with every padding byte an explicit field, so Rust, C and
@@ -16,6 +17,7 @@ use core::fmt;
 use core::ops::{BitOr, BitOrAssign};
 
 use iceoryx2::prelude::ZeroCopySend;
+use thiserror::Error;
 
 /// Status bits shared by [`Pose::status`] and [`Status::flags`].
 ///
@@ -307,6 +309,127 @@ impl Status {
     }
 }
 
+/// An initial-pose hint: roughly where `base_link` is in the saved site map, sent by an operator
+/// or a fleet manager so the daemon searches near it instead of the whole map. 80 bytes,
+/// alignment 8, iceoryx2 type name `glint::InitialPoseV1`.
+///
+/// Consumers publish it on `glint/<domain>/initial_pose`; the daemon subscribes. The daemon
+/// checks every hint with [`InitialPose::validate`] and ignores (and counts) those that fail, so
+/// a sender's bug cannot steer the localiser with NaN.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("glint::InitialPoseV1")]
+pub struct InitialPose {
+    /// When the consumer sent the hint, ns since the Unix epoch (lets the daemon ignore a hint
+    /// that waited too long).
+    pub timestamp_ns: u64,
+    /// Position of `base_link` in the map frame, metres.
+    pub position: [f64; 3],
+    /// Orientation of `base_link` in the map frame: a unit Hamilton quaternion stored
+    /// **x, y, z, w**, as in [`Pose::orientation`].
+    pub orientation: [f64; 4],
+    /// How far off the position may be, metres (one standard deviation); 0 = unknown.
+    pub position_sigma: f64,
+    /// Must be [`Frame::MAP`]: the hint is a pose in the saved site map.
+    pub frame: Frame,
+    /// Explicit padding to a multiple of 8 bytes; always 0.
+    _pad0: u32,
+}
+
+/// Why an [`InitialPose`] is not a usable hint.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum InitialPoseError {
+    /// A field holds NaN or infinity.
+    #[error("the initial pose's {field} is not finite")]
+    NonFinite {
+        /// The first offending field.
+        field: &'static str,
+    },
+    /// The orientation is not a unit quaternion (its norm is off 1 by more than
+    /// [`InitialPose::UNIT_TOLERANCE`]).
+    #[error("the initial pose's orientation has norm {norm}; a unit quaternion (x, y, z, w) is required")]
+    NotUnitQuaternion {
+        /// The quaternion's norm.
+        norm: f64,
+    },
+    /// The frame is not [`Frame::MAP`].
+    #[error("the initial pose is in frame {frame}; it must be in map")]
+    NotMapFrame {
+        /// The frame given.
+        frame: Frame,
+    },
+    /// `position_sigma` is negative (0 means unknown).
+    #[error("the initial pose's position_sigma is {sigma} m; it must be >= 0 (0 = unknown)")]
+    NegativeSigma {
+        /// The value given.
+        sigma: f64,
+    },
+}
+
+impl InitialPose {
+    /// The iceoryx2 type name, as other languages must spell it.
+    pub const TYPE_NAME: &'static str = "glint::InitialPoseV1";
+
+    /// How far the orientation's norm may be from 1.
+    pub const UNIT_TOLERANCE: f64 = 1e-6;
+
+    /// A hint in [`Frame::MAP`]. Not validated; see [`validate`](Self::validate).
+    pub const fn new(
+        timestamp_ns: u64,
+        position: [f64; 3],
+        orientation: [f64; 4],
+        position_sigma: f64,
+    ) -> Self {
+        Self {
+            timestamp_ns,
+            position,
+            orientation,
+            position_sigma,
+            frame: Frame::MAP,
+            _pad0: 0,
+        }
+    }
+
+    /// A hint for a robot on the floor: `base_link` at (`x`, `y`, 0), turned `yaw` radians
+    /// about the map's z axis.
+    pub fn on_floor(timestamp_ns: u64, x: f64, y: f64, yaw: f64, position_sigma: f64) -> Self {
+        let (s, c) = (yaw / 2.0).sin_cos();
+        Self::new(timestamp_ns, [x, y, 0.0], [0.0, 0.0, s, c], position_sigma)
+    }
+
+    /// Checks that every number is finite, the orientation a unit quaternion, `position_sigma`
+    /// not negative and the frame [`Frame::MAP`].
+    pub fn validate(&self) -> Result<(), InitialPoseError> {
+        let fields: [(&'static str, &[f64]); 3] = [
+            ("position", &self.position),
+            ("orientation", &self.orientation),
+            (
+                "position_sigma",
+                core::slice::from_ref(&self.position_sigma),
+            ),
+        ];
+        if let Some((field, _)) = fields
+            .into_iter()
+            .find(|(_, values)| values.iter().any(|v| !v.is_finite()))
+        {
+            return Err(InitialPoseError::NonFinite { field });
+        }
+        let norm = self.orientation.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if (norm - 1.0).abs() > Self::UNIT_TOLERANCE {
+            return Err(InitialPoseError::NotUnitQuaternion { norm });
+        }
+        if self.position_sigma < 0.0 {
+            return Err(InitialPoseError::NegativeSigma {
+                sigma: self.position_sigma,
+            });
+        }
+        if self.frame != Frame::MAP {
+            return Err(InitialPoseError::NotMapFrame { frame: self.frame });
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -350,5 +473,54 @@ mod tests {
         p.covariance[35] = 0.0;
         p.quality = f32::INFINITY;
         assert_eq!(p.first_non_finite_field(), Some("quality"));
+    }
+
+    #[test]
+    fn initial_pose_on_the_floor_is_valid_and_turns_about_z() {
+        let h = InitialPose::on_floor(5, 1.0, -2.0, core::f64::consts::FRAC_PI_2, 0.5);
+        assert_eq!(h.validate(), Ok(()));
+        assert_eq!(h.position, [1.0, -2.0, 0.0]);
+        let [x, y, z, w] = h.orientation;
+        assert_eq!((x, y), (0.0, 0.0));
+        assert!((z - w).abs() < 1e-12 && (w - 0.5f64.sqrt()).abs() < 1e-12);
+        assert_eq!(h.frame, Frame::MAP);
+    }
+
+    #[test]
+    fn invalid_initial_poses_say_why() {
+        let good = InitialPose::on_floor(0, 0.0, 0.0, 0.3, 0.0);
+        let mut h = good;
+        h.position[1] = f64::NAN;
+        assert_eq!(
+            h.validate(),
+            Err(InitialPoseError::NonFinite { field: "position" })
+        );
+        let mut h = good;
+        h.position_sigma = f64::INFINITY;
+        assert_eq!(
+            h.validate(),
+            Err(InitialPoseError::NonFinite {
+                field: "position_sigma"
+            })
+        );
+        let mut h = good;
+        h.orientation = [0.0, 0.0, 0.0, 1.00001];
+        assert!(matches!(
+            h.validate(),
+            Err(InitialPoseError::NotUnitQuaternion { .. })
+        ));
+        let mut h = good;
+        h.position_sigma = -1.0;
+        assert_eq!(
+            h.validate(),
+            Err(InitialPoseError::NegativeSigma { sigma: -1.0 })
+        );
+        let mut h = good;
+        h.frame = Frame::ODOM;
+        assert_eq!(
+            h.validate(),
+            Err(InitialPoseError::NotMapFrame { frame: Frame::ODOM })
+        );
+        assert!(h.validate().unwrap_err().to_string().contains("odom"));
     }
 }

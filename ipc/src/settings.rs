@@ -43,3 +43,31 @@ pub const MAX_NOTIFIERS: usize = MAX_PUBLISHERS;
 
 /// How long the daemon waits, per dead node, for another process already cleaning it up.
 pub const DEAD_NODE_CLEANUP_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// `initial_pose` history: none. A hint is about the robot's pose now; a daemon that subscribes
+/// later (a restart) must not act on an old one.
+pub const INITIAL_POSE_HISTORY_SIZE: usize = 0;
+
+/// `initial_pose` hints the daemon's subscriber queues before the oldest is overwritten. Hints are
+/// rare; the newest is the one that counts.
+pub const INITIAL_POSE_BUFFER_SIZE: usize = 8;
+
+/// `initial_pose` senders at once (each an operator tool or a fleet manager holding the service
+/// open), and notifiers on its event service.
+pub const INITIAL_POSE_MAX_PUBLISHERS: usize = 8;
+
+/// `initial_pose` subscribers: the daemon's only, so a second daemon on the domain is refused
+/// here as well and no other process takes hints meant for the daemon.
+pub const INITIAL_POSE_MAX_SUBSCRIBERS: usize = 1;
+
+/// How often, at the least, the daemon must poll its
+/// [`InitialPoseSubscriber`](crate::InitialPoseSubscriber). Polling connects the subscriber to
+/// new senders; a hint whose sender leaves before that is lost (iceoryx2 keeps undelivered
+/// samples only for connections both sides have opened).
+pub const INITIAL_POSE_MAX_POLL_INTERVAL: Duration = Duration::from_millis(100);
+
+/// How long a one-shot sender ([`send_initial_pose`](crate::send_initial_pose), `glintd
+/// initial-pose`, `glint_send_initial_pose`, the Python example) keeps its port open after
+/// sending: five times [`INITIAL_POSE_MAX_POLL_INTERVAL`], so the daemon has connected and holds
+/// the hint when the sender goes.
+pub const INITIAL_POSE_SENDER_LINGER: Duration = Duration::from_millis(500);

@@ -1,12 +1,12 @@
 //! The byte layout of the wire payloads, pinned: size, alignment and every field's offset and size
-//! of `Pose` and `Status`, checked against one table per struct — the same tables as in
+//! of `Pose`, `Status` and `InitialPose`, checked against one table per struct — the same tables as in
 //! `ipc/README.md`, whose rows this test also finds in the README. A failure here means the
 //! contract with C and Python consumers changed: bump the type name (`glint::PoseV2`) and the
 //! README together, never the layout alone.
 
 use core::mem::{align_of, offset_of, size_of, size_of_val};
 
-use glint_ipc::{Frame, Pose, Status};
+use glint_ipc::{Frame, InitialPose, Pose, Status};
 
 /// One README row: byte offset, size in bytes, type as the README spells it, field name.
 type Row = (usize, usize, &'static str, &'static str);
@@ -42,6 +42,17 @@ const STATUS_LAYOUT: &[Row] = &[
     (64, 4, "f32", "latency_median_ms"),
     (68, 4, "f32", "latency_p99_ms"),
     (72, 4, "u32", "flags"),
+    (76, 4, "u32", "_pad0"),
+];
+
+const INITIAL_POSE_SIZE: usize = 80;
+const INITIAL_POSE_ALIGN: usize = 8;
+const INITIAL_POSE_LAYOUT: &[Row] = &[
+    (0, 8, "u64", "timestamp_ns"),
+    (8, 24, "f64[3]", "position"),
+    (32, 32, "f64[4]", "orientation"),
+    (64, 8, "f64", "position_sigma"),
+    (72, 4, "u32", "frame"),
     (76, 4, "u32", "_pad0"),
 ];
 
@@ -120,9 +131,33 @@ fn status_layout_matches_the_contract() {
 }
 
 #[test]
+fn initial_pose_layout_matches_the_contract() {
+    assert_eq!(size_of::<InitialPose>(), INITIAL_POSE_SIZE);
+    assert_eq!(align_of::<InitialPose>(), INITIAL_POSE_ALIGN);
+    let h = InitialPose::new(0, [0.0; 3], [0.0, 0.0, 0.0, 1.0], 0.0);
+    let measured = [
+        measured!(h, InitialPose, timestamp_ns),
+        measured!(h, InitialPose, position),
+        measured!(h, InitialPose, orientation),
+        measured!(h, InitialPose, position_sigma),
+        measured!(h, InitialPose, frame),
+    ];
+    assert_eq!(
+        measured.len() + 1,
+        INITIAL_POSE_LAYOUT.len(),
+        "one padding field"
+    );
+    assert_matches(INITIAL_POSE_LAYOUT, &measured, INITIAL_POSE_SIZE);
+}
+
+#[test]
 fn readme_tables_state_the_same_layout() {
     let readme = include_str!("../README.md");
-    for (offset, len, ty, name) in POSE_LAYOUT.iter().chain(STATUS_LAYOUT) {
+    for (offset, len, ty, name) in POSE_LAYOUT
+        .iter()
+        .chain(STATUS_LAYOUT)
+        .chain(INITIAL_POSE_LAYOUT)
+    {
         let row = format!("| {offset} | {len} | {ty} | `{name}` |");
         assert!(readme.contains(&row), "README lacks the row {row}");
     }
@@ -135,6 +170,10 @@ fn readme_tables_state_the_same_layout() {
             "`{}`, {STATUS_SIZE} bytes, alignment {STATUS_ALIGN}",
             Status::TYPE_NAME
         ),
+        format!(
+            "`{}`, {INITIAL_POSE_SIZE} bytes, alignment {INITIAL_POSE_ALIGN}",
+            InitialPose::TYPE_NAME
+        ),
     ] {
         assert!(readme.contains(&needle), "README lacks {needle:?}");
     }
@@ -144,4 +183,5 @@ fn readme_tables_state_the_same_layout() {
 fn type_names_are_the_documented_ones() {
     assert_eq!(Pose::TYPE_NAME, "glint::PoseV1");
     assert_eq!(Status::TYPE_NAME, "glint::StatusV1");
+    assert_eq!(InitialPose::TYPE_NAME, "glint::InitialPoseV1");
 }
