@@ -7,8 +7,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 use glintd::{
-    bench_cmd, decode_cmd, echo_cmd, eval_cmd, info_cmd, initial_pose_cmd, map_cmd,
-    posegraph_cmd, record_cmd, replay_cmd, run_cmd,
+    bench_cmd, decode_cmd, echo_cmd, eval_cmd, info_cmd, initial_pose_cmd, map_cmd, posegraph_cmd,
+    record_cmd, replay_cmd, run_cmd,
 };
 #[cfg(feature = "sim")]
 use glintd::{demo_cmd, sim_cmd};

@@ -154,3 +154,64 @@ fn damaged_and_foreign_maps_are_refused_with_one_line() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn a_consumer_s_initial_pose_reaches_a_localising_daemon() {
+    let dir = scratch("hint");
+    let d = |f: &str| dir.join(f).to_str().unwrap().to_owned();
+    let domain = format!("test-hint-{}", std::process::id());
+    let (o, out, err) = run(&[
+        "sim",
+        "warehouse",
+        "--seed",
+        "12",
+        "--seconds",
+        "8",
+        "--out",
+        &d("run"),
+    ]);
+    assert!(o.status.success(), "{out}{err}");
+    let capture = d("run/scan.pcap");
+    let (o, out, err) = run(&[
+        "replay",
+        &capture,
+        "--no-publish",
+        "--save-map",
+        &d("m.glintmap"),
+    ]);
+    assert!(o.status.success(), "{out}{err}");
+    // Localising at the sensor's pace, publishing on a domain of its own: the hint service
+    // exists while it runs.
+    let daemon = glintd()
+        .args([
+            "replay",
+            &capture,
+            "--localise",
+            &d("m.glintmap"),
+            "--pace",
+            "realtime",
+            "--domain",
+            &domain,
+        ])
+        .env("GLINT_LOG", "info")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut sent = None;
+    for _ in 0..40 {
+        std::thread::sleep(std::time::Duration::from_millis(250));
+        let (o, out, _) = run(&["initial-pose", "--domain", &domain, "1.0", "-0.5", "0.2"]);
+        if o.status.success() {
+            sent = Some(out);
+            break;
+        }
+    }
+    let daemon = daemon.wait_with_output().unwrap();
+    let log = String::from_utf8_lossy(&daemon.stderr);
+    assert!(daemon.status.success(), "{log}");
+    let sent = sent.expect("the daemon's hint service never appeared");
+    assert!(sent.contains("1 subscriber"), "{sent}");
+    assert!(log.contains("initial-pose hint received"), "{log}");
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -8,13 +8,15 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use crossbeam_channel::{Receiver, Sender, TrySendError};
+use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TrySendError};
 use glint_core::backend::config::BackEndConfig;
 use glint_core::backend::keyframe::Keyframe;
 use glint_core::backend::{BackEnd, BackEndStage, SiteMapHeader};
 use glint_core::config::IntensityMapConfig;
 use glint_core::localiser::{Localiser, MapState};
 use glint_core::tracker::Correction;
+use glint_ipc::InitialPoseSubscriber;
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 
 use super::health::{recv_beating, send_beating, Heartbeats, Stage};
 use super::SlamSummary;
@@ -141,13 +143,60 @@ impl MapSaver {
 
 /// The localiser's thread: locates each keyframe in the saved map and answers with the
 /// correction, until the odometry is gone.
+/// Initial-pose hints from consumers (`glint/<domain>/initial_pose`), for the localiser.
+pub(super) struct HintSource {
+    pub(super) subscriber: InitialPoseSubscriber,
+    /// The robot's mounting: hints are `base_link` poses, the localiser takes the sensor's.
+    pub(super) base_from_sensor: Isometry3<f64>,
+}
+
+impl HintSource {
+    /// The newest hint since the last call, as the sensor's pose in the map.
+    fn take(&self) -> Option<Isometry3<f64>> {
+        match self.subscriber.try_latest() {
+            Ok(Some(hint)) => {
+                let [x, y, z] = hint.position;
+                let [qx, qy, qz, qw] = hint.orientation;
+                let base = Isometry3::from_parts(
+                    Translation3::new(x, y, z),
+                    UnitQuaternion::from_quaternion(Quaternion::new(qw, qx, qy, qz)),
+                );
+                tracing::info!(x, y, "initial-pose hint received: relocalising near it");
+                Some(base * self.base_from_sensor)
+            }
+            Ok(None) => None,
+            Err(e) => {
+                tracing::warn!("initial-pose hints cannot be read: {e}");
+                None
+            }
+        }
+    }
+}
+
+/// How often the localiser looks for a hint while no keyframe comes (the service keeps a
+/// sender's hint only while the subscriber polls: see `glint_ipc::settings`).
+const HINT_POLL: Duration = Duration::from_millis(50);
+
+/// The localiser's thread: locates each keyframe in the saved map and answers with the
+/// correction and how far it is verified, taking initial-pose hints as they come; until the
+/// odometry is gone.
 pub(super) fn run_localiser(
     mut localiser: Localiser,
+    hints: Option<HintSource>,
     input: &Receiver<(u64, Keyframe)>,
     output: &Sender<Correction>,
     heartbeats: &Heartbeats,
 ) {
-    while let Some((epoch, keyframe)) = recv_beating(input, heartbeats, Stage::BackEnd) {
+    loop {
+        heartbeats.beat(Stage::BackEnd);
+        if let Some(hint) = hints.as_ref().and_then(HintSource::take) {
+            localiser.hint(hint);
+        }
+        let (epoch, keyframe) = match input.recv_timeout(HINT_POLL) {
+            Ok(message) => message,
+            Err(RecvTimeoutError::Timeout) => continue,
+            Err(RecvTimeoutError::Disconnected) => break,
+        };
         let (answer, outcome) = localiser.answer(epoch, &keyframe);
         tracing::debug!(
             epoch,

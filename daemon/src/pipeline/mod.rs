@@ -55,7 +55,9 @@ use nalgebra::{Isometry3, Vector3};
 
 use crate::capture::CaptureReport;
 use crate::publish::PoseBus;
-use backend_link::{run_backend, run_localiser, BackEndLink, Lockstep, MapSaver, BACK_END_QUEUE};
+use backend_link::{
+    run_backend, run_localiser, BackEndLink, HintSource, Lockstep, MapSaver, BACK_END_QUEUE,
+};
 use front_end::{run_front_end, Featured};
 use health::Heartbeats;
 use odometry::{run_odometry, Estimated, OdometryOutcome};
@@ -397,9 +399,22 @@ pub fn run(mut options: Options) -> Result<Summary> {
                 if let Some(hint) = options.site_map.hint {
                     localiser.hint(hint);
                 }
+                // Consumers may narrow the search at run time, where poses are published.
+                let hints = match &options.publish {
+                    Some(p) => {
+                        let domain = glint_ipc::Domain::new(&p.domain)
+                            .map_err(|e| anyhow!("domain {:?}: {e}", p.domain))?;
+                        Some(HintSource {
+                            subscriber: glint_ipc::InitialPoseSubscriber::create(&domain)
+                                .context("cannot offer the initial-pose service")?,
+                            base_from_sensor: options.base_from_sensor,
+                        })
+                    }
+                    None => None,
+                };
                 let heartbeats = heartbeats.clone();
                 let handle = spawn("glint-localiser", move || {
-                    run_localiser(localiser, &keyframe_rx, &reply_tx, &heartbeats);
+                    run_localiser(localiser, hints, &keyframe_rx, &reply_tx, &heartbeats);
                     Ok(())
                 })?;
                 (Some(link), None, Some(handle))
