@@ -515,6 +515,10 @@ mod tests {
         // As many matches as usual, but five times the residual: a wrong alignment.
         assert!(!history.usual_match(0.62, 0.023));
         assert!(!history.usual_match(0.4, 0.004));
+        // Localising, four times the usual residual is a jump; twice is only doubtful.
+        assert!(history.striking(0.023));
+        assert!(!history.striking(0.009));
+        assert!(!MatchHistory::default().striking(1.0), "no yardstick yet");
     }
 
     #[test]
