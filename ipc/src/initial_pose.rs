@@ -23,9 +23,7 @@ use iceoryx2::port::notifier::{Notifier, NotifierCreateError, NotifierNotifyErro
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
 use iceoryx2::port::SendError;
-use iceoryx2::prelude::{
-    BackpressureStrategy, Node, NodeBuilder, NodeName, ServiceName, SignalHandlingMode,
-};
+use iceoryx2::prelude::{BackpressureStrategy, Node, ServiceName};
 use iceoryx2::service::builder::event::{EventOpenError, EventOpenOrCreateError};
 use iceoryx2::service::builder::publish_subscribe::{
     PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
@@ -36,7 +34,7 @@ use thiserror::Error;
 use crate::names::{Domain, Stream};
 use crate::payload::{InitialPose, InitialPoseError};
 use crate::subscriber::{ReceiveError, WaitError};
-use crate::{settings, Transport};
+use crate::{node_builder, settings, Transport};
 
 /// Why [`InitialPoseSubscriber::create`] failed.
 #[derive(Debug, Error)]
@@ -234,13 +232,9 @@ impl InitialPoseSubscriber {
     pub fn create(domain: &Domain) -> Result<Self, InitialPoseCreateError> {
         use InitialPoseCreateError as E;
         let stream = Stream::InitialPose;
-        let mut builder = NodeBuilder::new()
-            // The daemon owns SIGINT/SIGTERM; iceoryx2 must not install handlers of its own.
-            .signal_handling_mode(SignalHandlingMode::Disabled);
-        if let Ok(name) = NodeName::new(&format!("glintd/{domain}/{stream}")) {
-            builder = builder.name(&name);
-        }
-        let node = builder.create::<Transport>().map_err(E::Node)?;
+        let node = node_builder(&format!("glintd/{domain}/{stream}"))
+            .create::<Transport>()
+            .map_err(E::Node)?;
 
         let name = domain.service_name(stream);
         let service = node
@@ -403,13 +397,9 @@ impl InitialPosePublisher {
     pub fn open(domain: &Domain) -> Result<Self, InitialPoseOpenError> {
         use InitialPoseOpenError as E;
         let stream = Stream::InitialPose;
-        let mut builder = NodeBuilder::new()
-            // The application owns its signals; iceoryx2 must not install handlers of its own.
-            .signal_handling_mode(SignalHandlingMode::Disabled);
-        if let Ok(name) = NodeName::new(&format!("glint-initial-pose/{domain}")) {
-            builder = builder.name(&name);
-        }
-        let node = builder.create::<Transport>().map_err(E::Node)?;
+        let node = node_builder(&format!("glint-initial-pose/{domain}"))
+            .create::<Transport>()
+            .map_err(E::Node)?;
 
         let name = domain.service_name(stream);
         let service = node

@@ -45,3 +45,15 @@ pub const ICEORYX2_VERSION: &str = "0.10.0";
 /// `Sync` (mutex-protected). It shares memory layout and files with `ipc::Service` (and Python's
 /// `ServiceType.Ipc`), differing only in in-process locking.
 type Transport = iceoryx2::service::ipc_threadsafe::Service;
+
+/// A node builder for every port of this crate: signal handling off (the process owns SIGINT and
+/// SIGTERM; iceoryx2 must not install handlers of its own) and named `name` when that is a
+/// valid node name (it only labels the node in `iox2 node list`).
+fn node_builder(name: &str) -> iceoryx2::prelude::NodeBuilder {
+    use iceoryx2::prelude::{NodeBuilder, NodeName, SignalHandlingMode};
+    let builder = NodeBuilder::new().signal_handling_mode(SignalHandlingMode::Disabled);
+    match NodeName::new(name) {
+        Ok(name) => builder.name(&name),
+        Err(_) => builder,
+    }
+}

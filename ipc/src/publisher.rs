@@ -11,10 +11,7 @@ use iceoryx2::port::notifier::{NotifierCreateError, NotifierNotifyError};
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::update_connections::{ConnectionFailure, UpdateConnections};
 use iceoryx2::port::SendError;
-use iceoryx2::prelude::{
-    BackpressureStrategy, Config, Node, NodeBuilder, NodeName, PortName, ServiceName,
-    SignalHandlingMode, ZeroCopySend,
-};
+use iceoryx2::prelude::{BackpressureStrategy, Config, Node, PortName, ServiceName, ZeroCopySend};
 use iceoryx2::service::builder::event::EventOpenOrCreateError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError;
 use iceoryx2::service::service_name::ServiceNameError;
@@ -23,7 +20,7 @@ use thiserror::Error;
 use crate::names::{Domain, PoseStream, Stream};
 use crate::payload::{Pose, Status};
 use crate::settings;
-use crate::Transport;
+use crate::{node_builder, Transport};
 
 /// Why [`PosePublisher::create`] failed.
 #[derive(Debug, Error)]
@@ -324,14 +321,8 @@ impl PosePublisher {
         let mut config: Config = Config::global_config().clone();
         // Clean up explicitly below, waiting for other cleaners, and keep the count for the log.
         config.global.node.cleanup_dead_nodes_on_creation = false;
-        let mut builder = NodeBuilder::new()
+        let node = node_builder(&format!("glintd/{domain}"))
             .config(&config)
-            // The daemon owns SIGINT/SIGTERM; iceoryx2 must not install handlers of its own.
-            .signal_handling_mode(SignalHandlingMode::Disabled);
-        if let Ok(name) = NodeName::new(&format!("glintd/{domain}")) {
-            builder = builder.name(&name);
-        }
-        let node = builder
             .create::<Transport>()
             .map_err(PublisherError::Node)?;
         let cleanup = node

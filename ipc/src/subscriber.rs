@@ -18,9 +18,7 @@ use iceoryx2::node::NodeCreationFailure;
 use iceoryx2::port::listener::{Listener, ListenerCreateError, ListenerWaitError};
 use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
 use iceoryx2::port::ReceiveError as PortReceiveError;
-use iceoryx2::prelude::{
-    Node, NodeBuilder, NodeName, ServiceName, SignalHandlingMode, ZeroCopySend,
-};
+use iceoryx2::prelude::{Node, ServiceName, ZeroCopySend};
 use iceoryx2::service::builder::event::EventOpenError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 use iceoryx2::service::service_name::ServiceNameError;
@@ -28,7 +26,7 @@ use thiserror::Error;
 
 use crate::names::{Domain, PoseStream, Stream};
 use crate::payload::{Pose, Status};
-use crate::Transport;
+use crate::{node_builder, Transport};
 
 /// Why opening a [`PoseSubscriber`] or [`StatusSubscriber`] failed.
 #[derive(Debug, Error)]
@@ -135,13 +133,7 @@ struct Inlet<T: Debug + ZeroCopySend + 'static> {
 
 impl<T: Debug + ZeroCopySend + Copy + 'static> Inlet<T> {
     fn open(domain: &Domain, stream: Stream) -> Result<Self, SubscribeError> {
-        let mut builder = NodeBuilder::new()
-            // The application owns its signals; iceoryx2 must not install handlers of its own.
-            .signal_handling_mode(SignalHandlingMode::Disabled);
-        if let Ok(name) = NodeName::new(&format!("glint-subscriber/{domain}/{stream}")) {
-            builder = builder.name(&name);
-        }
-        let node = builder
+        let node = node_builder(&format!("glint-subscriber/{domain}/{stream}"))
             .create::<Transport>()
             .map_err(SubscribeError::Node)?;
 
