@@ -34,23 +34,22 @@ fn tum(path: &Path) -> Vec<Vec<f64>> {
         .collect()
 }
 
-#[test]
-fn a_mapped_run_is_saved_inspected_and_localised_in() {
-    let dir = scratch("cycle");
+/// Simulates a warehouse run into `dir/run` and maps it with `replay --save-map` into
+/// `dir/site.glintmap` (its trajectory in `dir/mapping.tum`); the capture's path.
+fn simulate_and_map(dir: &Path, seed: &str, seconds: &str) -> String {
     let d = |f: &str| dir.join(f).to_str().unwrap().to_owned();
     let (o, out, err) = run(&[
         "sim",
         "warehouse",
         "--seed",
-        "11",
+        seed,
         "--seconds",
-        "20",
+        seconds,
         "--out",
         &d("run"),
     ]);
     assert!(o.status.success(), "{out}{err}");
     let capture = d("run/scan.pcap");
-
     let (o, out, err) = run(&[
         "replay",
         &capture,
@@ -62,6 +61,14 @@ fn a_mapped_run_is_saved_inspected_and_localised_in() {
     ]);
     assert!(o.status.success(), "{out}{err}");
     assert!(out.contains("site map written to"), "{out}");
+    capture
+}
+
+#[test]
+fn a_mapped_run_is_saved_inspected_and_localised_in() {
+    let dir = scratch("cycle");
+    let d = |f: &str| dir.join(f).to_str().unwrap().to_owned();
+    let capture = simulate_and_map(&dir, "11", "20");
 
     let (o, out, err) = run(&["map", "info", &d("site.glintmap")]);
     assert!(o.status.success(), "{out}{err}");
@@ -160,26 +167,7 @@ fn a_consumer_s_initial_pose_reaches_a_localising_daemon() {
     let dir = scratch("hint");
     let d = |f: &str| dir.join(f).to_str().unwrap().to_owned();
     let domain = format!("test-hint-{}", std::process::id());
-    let (o, out, err) = run(&[
-        "sim",
-        "warehouse",
-        "--seed",
-        "12",
-        "--seconds",
-        "8",
-        "--out",
-        &d("run"),
-    ]);
-    assert!(o.status.success(), "{out}{err}");
-    let capture = d("run/scan.pcap");
-    let (o, out, err) = run(&[
-        "replay",
-        &capture,
-        "--no-publish",
-        "--save-map",
-        &d("m.glintmap"),
-    ]);
-    assert!(o.status.success(), "{out}{err}");
+    let capture = simulate_and_map(&dir, "12", "8");
     // Localising at the sensor's pace, publishing on a domain of its own: the hint service
     // exists while it runs.
     let daemon = glintd()
@@ -187,7 +175,7 @@ fn a_consumer_s_initial_pose_reaches_a_localising_daemon() {
             "replay",
             &capture,
             "--localise",
-            &d("m.glintmap"),
+            &d("site.glintmap"),
             "--pace",
             "realtime",
             "--domain",
