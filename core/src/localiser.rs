@@ -329,18 +329,16 @@ impl Localiser {
         );
         let max = self.config.max_verifications.max(1);
         if let Some(hint) = self.hint {
-            let mut near: Vec<(f64, usize)> = self
-                .keyframes
-                .iter()
-                .enumerate()
-                .map(|(i, (pose, _))| {
-                    let d = (pose.translation.vector - hint.translation.vector).norm();
-                    (d, i)
-                })
-                .filter(|(d, _)| *d <= self.config.hint_radius)
+            return self
+                .nearest(
+                    &hint.translation.vector,
+                    self.config.hint_radius,
+                    false,
+                    max,
+                )
+                .into_iter()
+                .map(|i| (i, hint))
                 .collect();
-            near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            return near.into_iter().take(max).map(|(_, i)| (i, hint)).collect();
         }
         let config = ScanContextConfig {
             ring_key_candidates: self.config.ring_key_candidates,
@@ -388,26 +386,19 @@ impl Localiser {
         config: &VerificationConfig,
     ) -> Option<Verification> {
         let centre = self.keyframes[anchor].0;
-        let mut near: Vec<(f64, usize)> = self
-            .keyframes
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| self.held[*i])
-            .map(|(i, (pose, _))| {
-                let d = (pose.translation.vector - centre.translation.vector).norm();
-                (d, i)
-            })
-            .filter(|(d, _)| *d <= self.config.submap_radius)
-            .collect();
-        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        near.truncate(self.config.submap_keyframes.max(1));
+        let near = self.nearest(
+            &centre.translation.vector,
+            self.config.submap_radius,
+            true,
+            self.config.submap_keyframes.max(1),
+        );
         if near.is_empty() {
             return None;
         }
         let inverse = centre.inverse();
         let submap: Vec<Placed<'_>> = near
             .iter()
-            .map(|&(_, i)| Placed {
+            .map(|&i| Placed {
                 pose: inverse * self.keyframes[i].0,
                 keyframe: &self.keyframes[i].1,
             })
@@ -417,13 +408,25 @@ impl Localiser {
 
     /// The saved keyframe with points nearest to `position`.
     fn nearest_held(&self, position: &Vector3<f64>) -> Option<usize> {
-        self.keyframes
+        self.nearest(position, f64::INFINITY, true, 1)
+            .first()
+            .copied()
+    }
+
+    /// The indices of at most `max` saved keyframes within `radius` of `position`, nearest
+    /// first (ties by index, so the choice is deterministic); with `held`, only those that
+    /// hold points.
+    fn nearest(&self, position: &Vector3<f64>, radius: f64, held: bool, max: usize) -> Vec<usize> {
+        let mut near: Vec<(f64, usize)> = self
+            .keyframes
             .iter()
             .enumerate()
-            .filter(|(i, _)| self.held[*i])
+            .filter(|(i, _)| !held || self.held[*i])
             .map(|(i, (pose, _))| ((pose.translation.vector - position).norm(), i))
-            .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)))
-            .map(|(_, i)| i)
+            .filter(|(d, _)| *d <= radius)
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        near.into_iter().take(max).map(|(_, i)| i).collect()
     }
 }
 
