@@ -13,6 +13,7 @@ pub mod trajectory;
 
 pub mod calibration;
 pub mod config;
+pub mod extension;
 pub mod features;
 pub mod intensity_map;
 pub mod local_map;

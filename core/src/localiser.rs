@@ -123,6 +123,18 @@ pub struct Localisation {
     pub relocalised: bool,
     /// Candidates verified (relocalisation) or registrations run (tracking).
     pub verifications: usize,
+    /// The keyframe's own registration in the map, when it fitted while tracking (a
+    /// relocalisation's unconfirmed fix is not one).
+    pub registered: Option<Registration>,
+}
+
+/// Where one keyframe registered in the saved map.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Registration {
+    /// The saved keyframe whose neighbourhood it registered against.
+    pub saved: usize,
+    /// The keyframe's pose found, sensor → map.
+    pub pose: Isometry3<f64>,
 }
 
 /// See the module docs.
@@ -238,15 +250,15 @@ impl Localiser {
     fn track(&mut self, keyframe: &Keyframe, correction: &Isometry3<f64>) -> Localisation {
         let predicted = correction * keyframe.odom_pose;
         let registered = self.register(keyframe, &predicted, &self.config.track);
-        let step = registered.map(|pose| predicted.inverse() * pose);
+        let step = registered.map(|r| predicted.inverse() * r.pose);
         let fits = step.is_some_and(|s| {
             s.translation.vector.norm() <= self.config.max_step
                 && s.rotation.angle() <= self.config.max_step_angle
         });
-        if fits {
+        let registered = registered.filter(|_| fits);
+        if let Some(r) = registered {
             self.failures = 0;
-            let pose = registered.expect("fits implies registered");
-            self.correction = Some(pose * keyframe.odom_pose.inverse());
+            self.correction = Some(r.pose * keyframe.odom_pose.inverse());
             self.hint = None;
         } else {
             self.failures += 1;
@@ -260,12 +272,21 @@ impl Localiser {
             // The fix from the last keyframe, confirmed by this one's registration (or not).
             if fits {
                 self.state = MapState::Tracking;
-                return self.outcome(true, 1);
+                return self.registered(self.outcome(true, 1), registered);
             }
             self.lose();
             return self.outcome(false, 1);
         }
-        self.outcome(false, 1)
+        self.registered(self.outcome(false, 1), registered)
+    }
+
+    /// `outcome` with the keyframe's registration, which counts only once tracking is
+    /// verified.
+    fn registered(&self, outcome: Localisation, registered: Option<Registration>) -> Localisation {
+        Localisation {
+            registered: registered.filter(|_| outcome.state == MapState::Tracking),
+            ..outcome
+        }
     }
 
     fn outcome(&self, relocalised: bool, verifications: usize) -> Localisation {
@@ -280,6 +301,7 @@ impl Localiser {
                 .flatten(),
             relocalised,
             verifications,
+            registered: None,
         }
     }
 
@@ -356,14 +378,14 @@ impl Localiser {
             .collect()
     }
 
-    /// Registers the keyframe against the map around `predicted` (sensor → map): the pose
-    /// found, if the registration is accepted.
+    /// Registers the keyframe against the map around `predicted` (sensor → map): where, if
+    /// the registration is accepted.
     fn register(
         &self,
         keyframe: &Keyframe,
         predicted: &Isometry3<f64>,
         config: &VerificationConfig,
-    ) -> Option<Isometry3<f64>> {
+    ) -> Option<Registration> {
         let anchor = self.nearest_held(&predicted.translation.vector)?;
         let anchor_pose = self.keyframes[anchor].0;
         let v = self.register_anchored(
@@ -372,7 +394,10 @@ impl Localiser {
             &[anchor_pose.inverse() * predicted],
             config,
         )?;
-        v.accepted.then(|| anchor_pose * v.relative)
+        v.accepted.then(|| Registration {
+            saved: anchor,
+            pose: anchor_pose * v.relative,
+        })
     }
 
     /// The verification of `keyframe` against the saved keyframes around keyframe `anchor`,

@@ -69,7 +69,9 @@ pub struct ReplayArgs {
     pub predicted_rate: f64,
     /// Mapping: write the run's site map here at the end (any file name; `*.glintmap` by
     /// convention), in the map frame the trajectory is written in: the first `base_link` pose.
-    /// With `--localise`, the map to extend is not changed: this is refused.
+    /// With `--localise`: write the saved map extended by the places this run drove through
+    /// that it does not cover, in its frame (the saved keyframes unchanged; it may be the
+    /// same file).
     #[arg(long, value_name = "MAP")]
     pub save_map: Option<PathBuf>,
     /// Localisation: localise in this saved site map instead of mapping. `--trajectory` then
@@ -125,13 +127,7 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     } else {
         None
     };
-    if args.save_map.is_some() && args.localise.is_some() {
-        anyhow::bail!(
-            "--save-map with --localise: extending a saved map is not supported yet; map the \
-             new area in a run of its own"
-        );
-    }
-    if args.save_map.is_some() && !loop_closure {
+    if args.save_map.is_some() && args.localise.is_none() && !loop_closure {
         anyhow::bail!("--save-map needs the back end: leave out --no-loop");
     }
     let base_from_sensor = daemon.mounting.base_from_sensor();
@@ -316,6 +312,15 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         for t in &summary.map_lost {
             say!("lost in the map at t = {:.3} s", *t as f64 * 1e-9);
         }
+    }
+    if let Some(e) = &summary.site_map_extension {
+        say!(
+            "map extended: {} keyframe(s) added; of the run's {}, {} registered in the saved map and {} placed in it",
+            e.added,
+            e.run_keyframes,
+            e.anchors,
+            e.placed
+        );
     }
     if let Some((path, bytes)) = &summary.site_map_saved {
         say!("site map written to {} ({bytes} bytes)", path.display());

@@ -2,7 +2,8 @@
 //! --save-map`, checked with `glintd map info` and `map export`, then the same scene replayed
 //! with `--localise` (and its `--localize` spelling): a relocalisation line on stdout, and a
 //! trajectory of verified poses only, in the map frame the mapping run's own trajectory is in.
-//! Damaged and foreign map files are refused with a one-line error.
+//! A map extended by a localisation run that drove on past it (`--localise MAP --save-map NEW`)
+//! covers what the run added. Damaged and foreign map files are refused with a one-line error.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -137,6 +138,79 @@ fn a_mapped_run_is_saved_inspected_and_localised_in() {
             assert!(d < 0.1, "{pose:?} vs {same:?}: {d} m");
         }
     }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// The number after `keyframes:` in `glintd map info`'s report.
+fn keyframes_in(map: &str) -> usize {
+    let (o, out, err) = run(&["map", "info", map]);
+    assert!(o.status.success(), "{out}{err}");
+    out.lines()
+        .find_map(|l| l.trim().strip_prefix("keyframes:"))
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("{out}"))
+}
+
+/// `N` in replay's "localisation: N of M sweeps verified" line.
+fn verified_in(stdout: &str) -> usize {
+    stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("localisation: "))
+        .and_then(|r| r.split(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("{stdout}"))
+}
+
+#[test]
+fn a_run_past_the_map_s_end_extends_it() {
+    let dir = scratch("extend");
+    let d = |f: &str| dir.join(f).to_str().unwrap().to_owned();
+    // The first 10 s of the route mapped; the same route driven for 25 s.
+    simulate_and_map(&dir, "11", "10");
+    let (o, out, err) = run(&[
+        "sim",
+        "warehouse",
+        "--seed",
+        "11",
+        "--seconds",
+        "25",
+        "--out",
+        &d("longer"),
+    ]);
+    assert!(o.status.success(), "{out}{err}");
+    let capture = d("longer/scan.pcap");
+    let (o, out, err) = run(&[
+        "replay",
+        &capture,
+        "--no-publish",
+        "--localise",
+        &d("site.glintmap"),
+        "--save-map",
+        &d("extended.glintmap"),
+    ]);
+    assert!(o.status.success(), "{out}{err}");
+    assert!(out.contains("map extended:"), "{out}");
+    let in_saved = verified_in(&out);
+    let (saved, extended) = (
+        keyframes_in(&d("site.glintmap")),
+        keyframes_in(&d("extended.glintmap")),
+    );
+    assert!(extended >= saved + 5, "{saved} → {extended}: {out}");
+    // The longer run again, in the extended map: verified past where the saved map ended.
+    let (o, out, err) = run(&[
+        "replay",
+        &capture,
+        "--no-publish",
+        "--localise",
+        &d("extended.glintmap"),
+    ]);
+    assert!(o.status.success(), "{out}{err}");
+    let in_extended = verified_in(&out);
+    assert!(
+        in_extended > in_saved + 50,
+        "{in_saved} → {in_extended}: {out}"
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -124,11 +124,32 @@ pub struct BackEnd {
     floor_edges_pending: usize,
 }
 
-fn information(sigma_translation: f64, sigma_rotation: f64) -> Matrix6<f64> {
+/// The information matrix of an edge with these standard deviations (m, rad).
+pub(crate) fn information(sigma_translation: f64, sigma_rotation: f64) -> Matrix6<f64> {
     let t = 1.0 / (sigma_translation * sigma_translation);
     // The residual's rotation part is a quaternion's vector part, ≈ θ/2.
     let r = 4.0 / (sigma_rotation * sigma_rotation);
     Matrix6::from_diagonal(&Vector6::new(t, t, t, r, r, r))
+}
+
+/// An odometry edge `from → to`: its uncertainty grows with the distance it spans.
+pub(crate) fn odometry_edge(
+    g: &config::GraphConfig,
+    from: usize,
+    to: usize,
+    measurement: Isometry3<f64>,
+) -> Edge {
+    let length = measurement.translation.vector.norm();
+    Edge {
+        from,
+        to,
+        measurement,
+        information: information(
+            g.odometry_sigma_translation + g.odometry_sigma_per_metre * length,
+            g.odometry_sigma_rotation,
+        ),
+        robust: false,
+    }
 }
 
 impl BackEnd {
@@ -219,19 +240,9 @@ impl BackEnd {
         let path = match self.keyframes.last() {
             Some(previous) => {
                 let measurement = previous.odom_pose.inverse() * keyframe.odom_pose;
-                let length = measurement.translation.vector.norm();
-                let g = &self.config.graph;
-                self.graph.edges.push(Edge {
-                    from: index - 1,
-                    to: index,
-                    measurement,
-                    information: information(
-                        g.odometry_sigma_translation + g.odometry_sigma_per_metre * length,
-                        g.odometry_sigma_rotation,
-                    ),
-                    robust: false,
-                });
-                self.path[index - 1] + length
+                let edge = odometry_edge(&self.config.graph, index - 1, index, measurement);
+                self.graph.edges.push(edge);
+                self.path[index - 1] + measurement.translation.vector.norm()
             }
             None => 0.0,
         };

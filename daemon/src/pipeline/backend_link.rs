@@ -13,6 +13,7 @@ use glint_core::backend::config::BackEndConfig;
 use glint_core::backend::keyframe::Keyframe;
 use glint_core::backend::{BackEnd, BackEndStage, SiteMapHeader};
 use glint_core::config::IntensityMapConfig;
+use glint_core::extension::{ExtensionReport, MapExtension};
 use glint_core::localiser::{Localiser, MapState};
 use glint_core::tracker::Correction;
 use glint_ipc::InitialPoseSubscriber;
@@ -139,10 +140,19 @@ impl MapSaver {
             .with_context(|| format!("cannot save the site map {}", self.path.display()))?;
         Ok(report.bytes)
     }
+
+    /// Saves the saved map extended by a localisation run crash-safely: its size in bytes and
+    /// what the run added.
+    pub(super) fn save_extension(&self, extension: MapExtension) -> Result<(u64, ExtensionReport)> {
+        let (map, added) = extension
+            .finish(&self.header)
+            .context("cannot place the run's keyframes in the saved map")?;
+        let report = glint_map::save(&self.path, &map)
+            .with_context(|| format!("cannot save the site map {}", self.path.display()))?;
+        Ok((report.bytes, added))
+    }
 }
 
-/// The localiser's thread: locates each keyframe in the saved map and answers with the
-/// correction, until the odometry is gone.
 /// Initial-pose hints from consumers (`glint/<domain>/initial_pose`), for the localiser.
 pub(super) struct HintSource {
     pub(super) subscriber: InitialPoseSubscriber,
@@ -179,14 +189,16 @@ const HINT_POLL: Duration = Duration::from_millis(50);
 
 /// The localiser's thread: locates each keyframe in the saved map and answers with the
 /// correction and how far it is verified, taking initial-pose hints as they come; until the
-/// odometry is gone.
+/// odometry is gone. Extending the map, each keyframe also goes to `extension` (after the
+/// answer: the pose path does not wait for it), which is returned.
 pub(super) fn run_localiser(
     mut localiser: Localiser,
     hints: Option<HintSource>,
+    mut extension: Option<MapExtension>,
     input: &Receiver<(u64, Keyframe)>,
     output: &Sender<Correction>,
     heartbeats: &Heartbeats,
-) {
+) -> Option<MapExtension> {
     loop {
         heartbeats.beat(Stage::BackEnd);
         if let Some(hint) = hints.as_ref().and_then(HintSource::take) {
@@ -216,7 +228,11 @@ pub(super) fn run_localiser(
         if output.send(answer).is_err() {
             break;
         }
+        if let Some(e) = extension.as_mut() {
+            e.add(epoch, &keyframe, &outcome);
+        }
     }
+    extension
 }
 
 /// The back end's thread: adds each keyframe to the pose graph (closing loops, saving the site

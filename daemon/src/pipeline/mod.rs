@@ -44,6 +44,7 @@ use glint_core::backend::config::BackEndConfig;
 use glint_core::backend::keyframe::Keyframe;
 use glint_core::backend::{BackEndStats, SiteMapHeader};
 use glint_core::config::OdometryConfig;
+use glint_core::extension::{ExtensionReport, MapExtension};
 use glint_core::localiser::{localisation_keyframes, Localiser, LocaliserConfig};
 use glint_core::odometry::TrackingStatus;
 use glint_core::site_map::SiteMap;
@@ -168,7 +169,8 @@ pub struct Options {
 /// The saved site map's part in a run (see `docs/localisation.md`).
 #[derive(Default)]
 pub struct SiteMapOptions {
-    /// Mapping: write the run's map here at the end (needs the back end).
+    /// Mapping: write the run's map here at the end (needs the back end). Localising: write
+    /// the saved map extended by what the run saw beyond it (see `glint_core::extension`).
     pub save: Option<PathBuf>,
     /// Mapping, live: also save it this often while running.
     pub autosave: Option<Duration>,
@@ -241,6 +243,8 @@ pub struct Summary {
     pub map_verified: u64,
     /// Mapping: the site map written at the end, and its size (bytes).
     pub site_map_saved: Option<(PathBuf, u64)>,
+    /// Localising with a map to save: what the run added to the saved map.
+    pub site_map_extension: Option<ExtensionReport>,
 }
 
 /// Sweeps counted by their tracking status.
@@ -391,6 +395,11 @@ pub fn run(mut options: Options) -> Result<Summary> {
     let (link, backend, localiser) =
         match (options.site_map.localise.take(), options.backend.clone()) {
             (Some(map), _) => {
+                let extension = options
+                    .site_map
+                    .save
+                    .is_some()
+                    .then(|| MapExtension::new(map.clone(), &backend_config));
                 let mut localiser = Localiser::new(
                     map,
                     &options.site_map.localiser,
@@ -414,8 +423,14 @@ pub fn run(mut options: Options) -> Result<Summary> {
                 };
                 let heartbeats = heartbeats.clone();
                 let handle = spawn("glint-localiser", move || {
-                    run_localiser(localiser, hints, &keyframe_rx, &reply_tx, &heartbeats);
-                    Ok(())
+                    Ok(run_localiser(
+                        localiser,
+                        hints,
+                        extension,
+                        &keyframe_rx,
+                        &reply_tx,
+                        &heartbeats,
+                    ))
                 })?;
                 (Some(link), None, Some(handle))
             }
@@ -509,10 +524,11 @@ pub fn run(mut options: Options) -> Result<Summary> {
         keyframes_dropped,
     } = join(odometry, "odometry")?;
     let backend = backend.map(|b| join(b, "back end")).transpose()?;
-    if let Some(l) = localiser {
-        join(l, "localiser")?;
-    }
-    let mut summary = sink.finish(world, backend, saver.as_ref(), &options)?;
+    let extension = localiser
+        .map(|l| join(l, "localiser"))
+        .transpose()?
+        .flatten();
+    let mut summary = sink.finish(world, backend, extension, saver.as_ref(), &options)?;
     if let Some(slam) = summary.slam.as_mut() {
         slam.keyframes_dropped = keyframes_dropped;
     }

@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use anyhow::Result;
 use glint_core::backend::BackEnd;
+use glint_core::extension::MapExtension;
 use glint_core::localiser::MapState;
 use glint_core::odometry::TrackingStatus;
 use glint_core::se3::{base_covariance, exp, to_base};
@@ -333,10 +334,20 @@ impl Sink {
         mut self,
         world: Option<WorldMap>,
         backend: Option<(BackEnd, SlamSummary)>,
+        extension: Option<MapExtension>,
         saver: Option<&MapSaver>,
         options: &Options,
     ) -> Result<Summary> {
         let mut world = world;
+        if let (Some(extension), Some(saver)) = (extension, saver) {
+            match saver.save_extension(extension) {
+                Ok((bytes, added)) => {
+                    self.summary.site_map_saved = Some((saver.path.clone(), bytes));
+                    self.summary.site_map_extension = Some(added);
+                }
+                Err(err) => self.summary.output_errors.push(format!("{err:#}")),
+            }
+        }
         if let Some((backend, mut report)) = backend {
             if let Some(saver) = saver {
                 // The trajectory written at the end is in the saved map's (levelled) frame.
