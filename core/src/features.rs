@@ -398,7 +398,7 @@ mod tests {
             features: config,
             ..Default::default()
         };
-        crate::odometry::FrontEnd::new(&odometry).process(&scan, &mut f);
+        crate::front_end::FrontEnd::new(&odometry).process(&scan, &mut f);
         f
     }
 

@@ -15,6 +15,7 @@ pub mod calibration;
 pub mod config;
 pub mod extension;
 pub mod features;
+pub mod front_end;
 pub mod intensity_map;
 pub mod local_map;
 pub mod localiser;

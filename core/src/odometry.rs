@@ -2,7 +2,8 @@
 //!
 //! - step 0: predict the pose by constant velocity and deskew the features to the sweep's
 //!   reference time with the per-point firing times;
-//! - steps 1–2 (done before, by [`FrontEnd`]): intensity calibration and salient points;
+//! - steps 1–2 (done before, by [`crate::front_end::FrontEnd`]): intensity calibration and
+//!   salient points;
 //! - steps 3–4: align the features to the local edge, plane and intensity maps;
 //! - step 5: read the degeneracy of the geometric constraints;
 //!
@@ -11,42 +12,14 @@
 
 use nalgebra::{Isometry3, Point3, Vector3, Vector6};
 
-use crate::calibration::RangeImage;
 use crate::config::OdometryConfig;
-use crate::features::{Feature, FeatureSelector, SweepFeatures};
+use crate::features::{Feature, SweepFeatures};
 use crate::intensity_map::IntensityMap;
 use crate::local_map::LocalMap;
-use crate::scan::Scan;
 use crate::se3::{exp, log};
 use crate::solver::{
     align_with, angular_weight, Alignment, AlignmentInput, Correspondences, IntensityPoint, MapView,
 };
-
-/// Steps 1–2 for one sweep: calibration and feature selection. Independent of the motion, so
-/// it can run on its own thread ahead of the odometry.
-#[derive(Debug, Default)]
-pub struct FrontEnd {
-    config: OdometryConfig,
-    image: RangeImage,
-    selector: FeatureSelector,
-}
-
-impl FrontEnd {
-    /// A front end with the calibration and feature sections of `config`.
-    pub fn new(config: &OdometryConfig) -> Self {
-        Self {
-            config: config.clone(),
-            ..Self::default()
-        }
-    }
-
-    /// Calibrates `scan` and selects its features into `out`.
-    pub fn process(&mut self, scan: &Scan<'_>, out: &mut SweepFeatures) {
-        self.image.build(scan, &self.config.calibration);
-        self.selector
-            .select(scan, &self.image, &self.config.features, out);
-    }
-}
 
 /// Where the odometry stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -107,6 +80,7 @@ pub struct Odometry {
     /// The sweep the maps were started from and its pose, until the next sweep measures the
     /// motion it was taken with (see [`Self::restart_maps`]).
     first_sweep: Option<(SweepFeatures, Isometry3<f64>)>,
+    deskew_cache: DeskewCache,
 }
 
 /// Sweeps between evictions of map cells far from the robot.
@@ -132,6 +106,7 @@ impl Odometry {
             known_poses: false,
             mapped_at: None,
             first_sweep: None,
+            deskew_cache: DeskewCache::default(),
         }
     }
 
@@ -191,7 +166,10 @@ impl Odometry {
     }
 
     /// Registers one sweep from a given prediction of its pose (another sensor's, or ground
-    /// truth in tests) instead of the constant-velocity one.
+    /// truth in tests) instead of the constant-velocity one. The method's steps, in order:
+    /// deskew by the predicted motion, align to the maps, deskew again by the motion measured
+    /// and refine, restart the maps from the first sweep when it was taken in motion, grow the
+    /// maps, and report the estimate.
     pub fn register_from(
         &mut self,
         features: &SweepFeatures,
@@ -199,167 +177,189 @@ impl Odometry {
         mut on_stage: impl FnMut(Stage),
     ) -> OdometryEstimate {
         let time_ns = features.reference_ns;
-        let interval = match self.last {
-            Some((t, _)) if time_ns > t => (time_ns - t) as f64 * 1e-9,
-            _ => 0.0,
-        };
         self.deskew(features, &self.velocity.clone());
         on_stage(Stage::Deskew);
-
         if self.last.is_none() || self.planes.is_empty() {
-            let status = if features.planes.is_empty() && features.edges.is_empty() {
-                TrackingStatus::Lost
-            } else {
-                self.grow_maps(features, &prediction);
-                TrackingStatus::Initialising
-            };
             on_stage(Stage::Align);
             on_stage(Stage::MapUpdate);
-            if status == TrackingStatus::Initialising {
-                self.last = Some((time_ns, prediction));
-                self.first_sweep = (!self.known_poses).then(|| (features.clone(), prediction));
-            }
-            self.sweeps += 1;
-            return OdometryEstimate {
-                time_ns,
-                pose: prediction,
-                velocity: self.velocity,
-                status,
-                alignment: None,
-            };
+            return self.initialise(features, time_ns, prediction);
         }
 
-        // Steps 3–5: align.
-        let maps = MapView {
-            edges: &self.edges,
-            planes: &self.planes,
-            intensity: &self.intensity,
-        };
-        self.correspondences.clear();
-        let mut alignment = align_with(
-            &prediction,
-            &self.input,
-            maps,
-            &self.config.solver,
-            &mut self.correspondences,
-        );
-        let enough = alignment.edges + alignment.planes >= self.config.solver.min_correspondences;
-        if !enough {
+        let mut alignment = self.align(&prediction, Rounds::Full);
+        if alignment.edges + alignment.planes < self.config.solver.min_correspondences {
             on_stage(Stage::Align);
             on_stage(Stage::MapUpdate);
-            // Hold the prediction; the map is not grown from a sweep that did not match.
+            // Hold the prediction; the maps do not grow from a sweep that did not match.
             self.last = Some((time_ns, prediction));
             self.sweeps += 1;
-            return OdometryEstimate {
-                time_ns,
-                pose: prediction,
-                velocity: self.velocity,
-                status: TrackingStatus::Lost,
-                alignment: Some(alignment),
-            };
+            return self.estimate(time_ns, prediction, TrackingStatus::Lost, alignment);
         }
-        // Deskew again with the motion just estimated and refine: the prediction's deskew is off
-        // by the change in velocity over the sweep.
-        if interval > 0.0 {
-            let (_, previous) = self.last.expect("tracking has a last pose");
-            let velocity = motion(&previous, &alignment.pose, interval);
-            if (velocity - self.velocity).norm() * SWEEP_SPAN_S > REDESKEW_THRESHOLD {
-                self.deskew(features, &velocity);
-                let maps = MapView {
-                    edges: &self.edges,
-                    planes: &self.planes,
-                    intensity: &self.intensity,
-                };
-                let refine = crate::config::SolverConfig {
-                    outer_iterations: 1,
-                    ..self.config.solver.clone()
-                };
-                // The correspondences of the first alignment still hold for points the new
-                // deskew moved by millimetres: only those it moved farther are searched again.
-                alignment = align_with(
-                    &alignment.pose,
-                    &self.input,
-                    maps,
-                    &refine,
-                    &mut self.correspondences,
-                );
-            }
-            self.velocity = motion(&previous, &alignment.pose, interval);
-            self.deskew(features, &self.velocity.clone());
+        let interval = match self.last {
+            Some((t, previous)) if time_ns > t => Some(((time_ns - t) as f64 * 1e-9, previous)),
+            _ => None,
+        };
+        if let Some((interval, previous)) = interval {
+            alignment = self.refine_with_measured_motion(features, alignment, &previous, interval);
             if let Some((first, first_pose)) = self.first_sweep.take() {
-                // The motion measured against the smeared map is itself off (1.2 m/s for 1.5
-                // in a room): each restart deskews the first sweep better, until the motion
-                // stops changing.
-                let mut deskewed_with = Vector6::zeros();
-                for _ in 0..MAX_RESTARTS {
-                    if (self.velocity - deskewed_with).norm() * SWEEP_SPAN_S <= REDESKEW_THRESHOLD {
-                        break;
-                    }
-                    deskewed_with = self.velocity;
-                    self.restart_maps(&first, &first_pose);
-                    self.deskew(features, &self.velocity.clone());
-                    let maps = MapView {
-                        edges: &self.edges,
-                        planes: &self.planes,
-                        intensity: &self.intensity,
-                    };
-                    self.correspondences.clear();
-                    alignment = align_with(
-                        &alignment.pose,
-                        &self.input,
-                        maps,
-                        &self.config.solver,
-                        &mut self.correspondences,
-                    );
-                    self.velocity = motion(&previous, &alignment.pose, interval);
-                    self.deskew(features, &self.velocity.clone());
-                }
+                alignment = self.restart_from_first_sweep(
+                    features,
+                    alignment,
+                    (&first, &first_pose),
+                    &previous,
+                    interval,
+                );
             }
         }
         on_stage(Stage::Align);
 
-        let pose = alignment.pose;
-        if self.known_poses {
+        let mapped_at = if self.known_poses {
             // Mapping with known poses: the alignment above only measures where the scan would
-            // have put the sensor; the map and the motion follow the given pose.
-            if interval > 0.0 {
-                let (_, previous) = self.last.expect("tracking has a last pose");
+            // have put the sensor; the maps and the motion follow the given pose.
+            if let Some((interval, previous)) = interval {
                 self.velocity = motion(&previous, &prediction, interval);
             }
             self.deskew(features, &self.velocity.clone());
-            self.grow_maps(features, &prediction);
-            self.last = Some((time_ns, prediction));
-            self.sweeps += 1;
-            on_stage(Stage::MapUpdate);
-            let status = if alignment.degenerate {
-                TrackingStatus::Degenerate
-            } else {
-                TrackingStatus::Tracking
-            };
-            return OdometryEstimate {
-                time_ns,
-                pose,
-                velocity: self.velocity,
-                status,
-                alignment: Some(alignment),
-            };
-        }
-        self.grow_maps(features, &pose);
-        self.last = Some((time_ns, pose));
-        self.sweeps += 1;
-        if self.sweeps.is_multiple_of(EVICT_EVERY) {
-            let center = pose.translation.vector.cast::<f32>();
-            let radius = self.config.local_map.radius;
-            self.edges.retain_near(&center, radius);
-            self.planes.retain_near(&center, radius);
-            self.intensity.retain_near(&center, radius);
-        }
+            prediction
+        } else {
+            alignment.pose
+        };
+        self.update_maps(features, time_ns, &mapped_at, !self.known_poses);
         on_stage(Stage::MapUpdate);
         let status = if alignment.degenerate {
             TrackingStatus::Degenerate
         } else {
             TrackingStatus::Tracking
         };
+        self.estimate(time_ns, alignment.pose, status, alignment)
+    }
+
+    /// The first sweep (or the first after the maps emptied) starts the maps at `pose`; one
+    /// without features is lost.
+    fn initialise(
+        &mut self,
+        features: &SweepFeatures,
+        time_ns: u64,
+        pose: Isometry3<f64>,
+    ) -> OdometryEstimate {
+        self.sweeps += 1;
+        let status = if features.planes.is_empty() && features.edges.is_empty() {
+            TrackingStatus::Lost
+        } else {
+            self.grow_maps(features, &pose);
+            self.last = Some((time_ns, pose));
+            self.first_sweep = (!self.known_poses).then(|| (features.clone(), pose));
+            TrackingStatus::Initialising
+        };
+        OdometryEstimate {
+            time_ns,
+            pose,
+            velocity: self.velocity,
+            status,
+            alignment: None,
+        }
+    }
+
+    /// Steps 3–5: aligns the deskewed features to the maps from `from`.
+    fn align(&mut self, from: &Isometry3<f64>, rounds: Rounds) -> Alignment {
+        let maps = MapView {
+            edges: &self.edges,
+            planes: &self.planes,
+            intensity: &self.intensity,
+        };
+        let refine;
+        let config = match rounds {
+            Rounds::Full => {
+                self.correspondences.clear();
+                &self.config.solver
+            }
+            Rounds::Refine => {
+                refine = crate::config::SolverConfig {
+                    outer_iterations: 1,
+                    ..self.config.solver.clone()
+                };
+                &refine
+            }
+        };
+        align_with(from, &self.input, maps, config, &mut self.correspondences)
+    }
+
+    /// Deskews again with the motion the alignment measured and, if that moves the sweep's
+    /// ends enough, refines the alignment: the prediction's deskew is off by the change in
+    /// velocity over the sweep. Leaves the features deskewed with the final motion.
+    fn refine_with_measured_motion(
+        &mut self,
+        features: &SweepFeatures,
+        mut alignment: Alignment,
+        previous: &Isometry3<f64>,
+        interval: f64,
+    ) -> Alignment {
+        let velocity = motion(previous, &alignment.pose, interval);
+        if (velocity - self.velocity).norm() * SWEEP_SPAN_S > REDESKEW_THRESHOLD {
+            self.deskew(features, &velocity);
+            // The correspondences of the first alignment still hold for points the new deskew
+            // moved by millimetres: only those it moved farther are searched again.
+            alignment = self.align(&alignment.pose, Rounds::Refine);
+        }
+        self.velocity = motion(previous, &alignment.pose, interval);
+        self.deskew(features, &self.velocity.clone());
+        alignment
+    }
+
+    /// The second sweep measures the motion the first was taken with: the maps restart from
+    /// the first sweep deskewed by it (see [`Self::restart_maps`]) and the second is aligned
+    /// again. The motion measured against the smeared map is itself off (1.2 m/s for 1.5 in a
+    /// room): each restart deskews the first sweep better, until the motion stops changing.
+    fn restart_from_first_sweep(
+        &mut self,
+        features: &SweepFeatures,
+        mut alignment: Alignment,
+        (first, first_pose): (&SweepFeatures, &Isometry3<f64>),
+        previous: &Isometry3<f64>,
+        interval: f64,
+    ) -> Alignment {
+        let mut deskewed_with = Vector6::zeros();
+        for _ in 0..MAX_RESTARTS {
+            if (self.velocity - deskewed_with).norm() * SWEEP_SPAN_S <= REDESKEW_THRESHOLD {
+                break;
+            }
+            deskewed_with = self.velocity;
+            self.restart_maps(first, first_pose);
+            self.deskew(features, &self.velocity.clone());
+            alignment = self.align(&alignment.pose, Rounds::Full);
+            self.velocity = motion(previous, &alignment.pose, interval);
+            self.deskew(features, &self.velocity.clone());
+        }
+        alignment
+    }
+
+    /// The sweep at `pose` into the maps (and evicts what lies beyond their radius now and
+    /// then, with `evict`); `pose` becomes the last one.
+    fn update_maps(
+        &mut self,
+        features: &SweepFeatures,
+        time_ns: u64,
+        pose: &Isometry3<f64>,
+        evict: bool,
+    ) {
+        self.grow_maps(features, pose);
+        self.last = Some((time_ns, *pose));
+        self.sweeps += 1;
+        if evict && self.sweeps.is_multiple_of(EVICT_EVERY) {
+            let center = pose.translation.vector.cast::<f32>();
+            let radius = self.config.local_map.radius;
+            self.edges.retain_near(&center, radius);
+            self.planes.retain_near(&center, radius);
+            self.intensity.retain_near(&center, radius);
+        }
+    }
+
+    fn estimate(
+        &self,
+        time_ns: u64,
+        pose: Isometry3<f64>,
+        status: TrackingStatus,
+        alignment: Alignment,
+    ) -> OdometryEstimate {
         OdometryEstimate {
             time_ns,
             pose,
@@ -372,17 +372,17 @@ impl Odometry {
     /// The sweep's calibrated returns in the map frame at `pose`, deskewed with the current
     /// velocity estimate (call right after [`Self::register`]), with their reflectivity.
     pub fn map_points<'a>(
-        &self,
+        &'a self,
         features: &'a SweepFeatures,
         pose: &Isometry3<f64>,
     ) -> impl Iterator<Item = (Vector3<f32>, f32)> + 'a {
-        place_calibrated(features, &self.velocity, pose)
+        place_calibrated(features, &self.velocity, pose, &self.deskew_cache)
     }
 
     /// Fills the alignment input with the features moved to the reference time, assuming the
     /// body twist `velocity` over the sweep.
     fn deskew(&mut self, features: &SweepFeatures, velocity: &Vector6<f64>) {
-        let skew = Deskew::new(velocity);
+        let skew = Deskew::new(velocity, &self.deskew_cache);
         self.input.edges.clear();
         self.input
             .edges
@@ -450,8 +450,12 @@ impl Odometry {
         for p in &self.input.planes {
             self.planes.insert((pose * Point3::from(*p)).coords.cast());
         }
-        self.intensity
-            .insert_sweep(place_calibrated(features, &self.velocity, pose));
+        self.intensity.insert_sweep(place_calibrated(
+            features,
+            &self.velocity,
+            pose,
+            &self.deskew_cache,
+        ));
     }
 }
 
@@ -473,8 +477,9 @@ fn place_calibrated<'a>(
     features: &'a SweepFeatures,
     velocity: &Vector6<f64>,
     pose: &Isometry3<f64>,
+    cache: &'a DeskewCache,
 ) -> impl Iterator<Item = (Vector3<f32>, f32)> + 'a {
-    let skew = Deskew::new(velocity);
+    let skew = Deskew::new(velocity, cache);
     let to_map = pose.cast::<f32>();
     features.calibrated.iter().map(move |f| {
         (
@@ -482,6 +487,13 @@ fn place_calibrated<'a>(
             f.eta,
         )
     })
+}
+
+/// How far an alignment goes: from scratch, or one outer round reusing the correspondences.
+#[derive(Debug, Clone, Copy)]
+enum Rounds {
+    Full,
+    Refine,
 }
 
 /// Restarts of the maps from the first sweep at most (see [`Odometry::restart_maps`]).
@@ -523,20 +535,25 @@ fn clamp_twist(v: Vector6<f64>) -> Vector6<f64> {
 /// Moves a point fired `dt` before the reference time into the reference frame, for a constant
 /// body twist: `p_ref = exp(dt·ξ)·p`. The exponential is cached per 0.1 ms of `dt` (a sweep has
 /// at most a few thousand distinct buckets; at 1 rad/s and 2 m/s the bucketing moves a point at
-/// 10 m by under 1 mm).
-struct Deskew {
+/// 10 m by under 1 mm), in a [`DeskewCache`] the odometry keeps from call to call.
+struct Deskew<'a> {
     twist: Vector6<f64>,
-    cache: std::cell::RefCell<Vec<Option<Isometry3<f64>>>>,
+    cache: &'a DeskewCache,
 }
+
+/// The exponentials of one twist per bucket of `dt`, kept between calls so that a deskew
+/// neither allocates nor recomputes them while the twist is the same.
+#[derive(Debug, Clone, Default)]
+struct DeskewCache(std::cell::RefCell<(Vector6<f64>, Vec<Option<Isometry3<f64>>>)>);
 
 const DESKEW_BUCKET_S: f64 = 1e-4;
 const DESKEW_BUCKETS: usize = 4000;
 
-impl Deskew {
-    fn new(twist: &Vector6<f64>) -> Self {
+impl<'a> Deskew<'a> {
+    fn new(twist: &Vector6<f64>, cache: &'a DeskewCache) -> Self {
         Self {
             twist: *twist,
-            cache: std::cell::RefCell::new(vec![None; DESKEW_BUCKETS]),
+            cache,
         }
     }
 
@@ -551,8 +568,14 @@ impl Deskew {
         }
         let bucket = (-f64::from(f.dt) / DESKEW_BUCKET_S).round();
         let transform = if bucket >= 0.0 && (bucket as usize) < DESKEW_BUCKETS {
-            let mut cache = self.cache.borrow_mut();
-            *cache[bucket as usize]
+            let mut cache = self.cache.0.borrow_mut();
+            // Held for another twist (or never filled): start over for this one.
+            if cache.0 != self.twist || cache.1.len() != DESKEW_BUCKETS {
+                cache.0 = self.twist;
+                cache.1.clear();
+                cache.1.resize(DESKEW_BUCKETS, None);
+            }
+            *cache.1[bucket as usize]
                 .get_or_insert_with(|| exp(&(self.twist * (-bucket * DESKEW_BUCKET_S))))
         } else {
             exp(&(self.twist * f64::from(f.dt)))
@@ -564,7 +587,8 @@ impl Deskew {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scan::ScanPoint;
+    use crate::front_end::FrontEnd;
+    use crate::scan::{Scan, ScanPoint};
 
     #[test]
     fn deskew_undoes_constant_motion() {
@@ -581,7 +605,7 @@ mod tests {
             eta: 0.0,
             normal: [0.0; 3],
         };
-        let deskewed = Deskew::new(&twist).apply(&f);
+        let deskewed = Deskew::new(&twist, &DeskewCache::default()).apply(&f);
         let expected = at(0.0).inverse() * world;
         assert!(
             (deskewed - expected.coords).norm() < 1e-5,

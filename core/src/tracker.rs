@@ -488,7 +488,7 @@ impl Tracker {
     /// The last sweep's calibrated returns placed at `pose` (call right after
     /// [`Self::track`]), with their reflectivity.
     pub fn map_points<'a>(
-        &self,
+        &'a self,
         features: &'a SweepFeatures,
         pose: &Isometry3<f64>,
     ) -> impl Iterator<Item = (Vector3<f32>, f32)> + 'a {

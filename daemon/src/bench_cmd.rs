@@ -10,8 +10,9 @@ use anyhow::{bail, Result};
 use clap::Args;
 use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
+use glint_core::front_end::FrontEnd;
 use glint_core::localiser::{localisation_keyframes, Localiser};
-use glint_core::odometry::{FrontEnd, Stage};
+use glint_core::odometry::Stage;
 use glint_core::tracker::Tracker;
 
 use crate::capture::{self, SensorArgs};

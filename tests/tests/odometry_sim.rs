@@ -3,10 +3,11 @@
 
 use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
+use glint_core::front_end::FrontEnd;
 use glint_core::metrics::{
     associate, ate_rmse, drift_along_axis, relative_errors, WAREHOUSE_LENGTHS,
 };
-use glint_core::odometry::{FrontEnd, TrackingStatus};
+use glint_core::odometry::TrackingStatus;
 use glint_core::tracker::Tracker;
 use glint_core::trajectory::StampedPose;
 use glint_sim::{Scenario, SimConfig, Simulation};

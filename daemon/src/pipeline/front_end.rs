@@ -6,7 +6,7 @@ use std::time::Instant;
 use crossbeam_channel::{Receiver, Sender};
 use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
-use glint_core::odometry::FrontEnd;
+use glint_core::front_end::FrontEnd;
 use glint_core::scan::{Scan, ScanPoint};
 use glint_driver::Sweep;
 
