@@ -544,7 +544,14 @@ struct Deskew<'a> {
 /// The exponentials of one twist per bucket of `dt`, kept between calls so that a deskew
 /// neither allocates nor recomputes them while the twist is the same.
 #[derive(Debug, Clone, Default)]
-struct DeskewCache(std::cell::RefCell<(Vector6<f64>, Vec<Option<Isometry3<f64>>>)>);
+struct DeskewCache(std::cell::RefCell<DeskewTransforms>);
+
+/// A twist, and per bucket its exponential once computed.
+#[derive(Debug, Clone, Default)]
+struct DeskewTransforms {
+    twist: Vector6<f64>,
+    by_bucket: Vec<Option<Isometry3<f64>>>,
+}
 
 const DESKEW_BUCKET_S: f64 = 1e-4;
 const DESKEW_BUCKETS: usize = 4000;
@@ -570,12 +577,12 @@ impl<'a> Deskew<'a> {
         let transform = if bucket >= 0.0 && (bucket as usize) < DESKEW_BUCKETS {
             let mut cache = self.cache.0.borrow_mut();
             // Held for another twist (or never filled): start over for this one.
-            if cache.0 != self.twist || cache.1.len() != DESKEW_BUCKETS {
-                cache.0 = self.twist;
-                cache.1.clear();
-                cache.1.resize(DESKEW_BUCKETS, None);
+            if cache.twist != self.twist || cache.by_bucket.len() != DESKEW_BUCKETS {
+                cache.twist = self.twist;
+                cache.by_bucket.clear();
+                cache.by_bucket.resize(DESKEW_BUCKETS, None);
             }
-            *cache.1[bucket as usize]
+            *cache.by_bucket[bucket as usize]
                 .get_or_insert_with(|| exp(&(self.twist * (-bucket * DESKEW_BUCKET_S))))
         } else {
             exp(&(self.twist * f64::from(f.dt)))
