@@ -73,8 +73,68 @@ pub struct FeatureSelector {
     ring_eta: Vec<[f32; 2]>,
 }
 
+/// One sweep as the selection rules read it.
+struct SweepView<'a> {
+    scan: &'a Scan<'a>,
+    image: &'a RangeImage,
+    config: &'a FeatureConfig,
+}
+
+impl SweepView<'_> {
+    /// Return `i` as a feature.
+    fn feature(&self, i: usize) -> Feature {
+        let p = &self.scan.points[i];
+        let dt = (p.time_ns as f64 - self.scan.reference_ns as f64) * 1e-9;
+        Feature {
+            position: p.position,
+            dt: dt as f32,
+            eta: self.image.eta[i],
+            normal: self.image.normal[i],
+        }
+    }
+
+    /// Return `i` is valid and within the feature range limits.
+    fn usable(&self, i: usize) -> bool {
+        let image = self.image;
+        image.valid[i]
+            && image.range[i] >= self.config.min_range
+            && image.range[i] <= self.config.max_range
+    }
+}
+
+/// The sweep's thresholds: σᴳ of a corner grows with the azimuth step between returns (0.2° at
+/// 600 rpm, 0.4° at 1200 rpm), so they follow the sweep's own step; the ranking is unchanged.
+struct Thresholds {
+    edge: f32,
+    plane: f32,
+    /// The noise floor of σᴳ at 1 m; it falls as 1/r.
+    noise_at_1m: f32,
+    /// 1 / the plane voxel's size, 1/m.
+    per_voxel: f32,
+}
+
+impl Thresholds {
+    fn new(config: &FeatureConfig, image: &RangeImage, k: usize) -> Self {
+        let step_ratio = image
+            .azimuth_step()
+            .map_or(1.0, |step| step / REFERENCE_STEP_RAD);
+        Self {
+            edge: config.edge_threshold * step_ratio.clamp(0.5, 4.0),
+            plane: config.plane_threshold * step_ratio.clamp(0.5, 4.0),
+            noise_at_1m: noise_floor(config, k, 1.0),
+            per_voxel: 1.0 / config.plane_voxel,
+        }
+    }
+
+    /// The noise floor of σᴳ at range `r`.
+    fn noise(&self, r: f32) -> f32 {
+        self.noise_at_1m / r.max(0.1)
+    }
+}
+
 impl FeatureSelector {
-    /// Selects the features of `scan`, whose returns `image` has calibrated, into `out`.
+    /// Selects the features of `scan`, whose returns `image` has calibrated, into `out`: the
+    /// intensity map's input, then ring by ring the rules below, then the intensity points.
     pub fn select(
         &mut self,
         scan: &Scan<'_>,
@@ -82,11 +142,6 @@ impl FeatureSelector {
         config: &FeatureConfig,
         out: &mut SweepFeatures,
     ) {
-        // σᴳ of a corner grows with the azimuth step between returns (0.2° at 600 rpm, 0.4° at
-        // 1200 rpm), so the thresholds follow the sweep's own step; the ranking is unchanged.
-        let step_ratio = image
-            .azimuth_step()
-            .map_or(1.0, |step| step / REFERENCE_STEP_RAD);
         out.reference_ns = scan.reference_ns;
         out.returns = scan.points.len();
         out.edges.clear();
@@ -95,31 +150,56 @@ impl FeatureSelector {
         out.calibrated.clear();
         self.voxels.clear();
         self.plane_roughness.clear();
-        let mut last_voxel = None;
         self.candidates.clear();
-        let feature = |i: usize| {
-            let p = &scan.points[i];
-            let dt = (p.time_ns as f64 - scan.reference_ns as f64) * 1e-9;
-            Feature {
-                position: p.position,
-                dt: dt as f32,
-                eta: image.eta[i],
-                normal: image.normal[i],
-            }
+        let sweep = SweepView {
+            scan,
+            image,
+            config,
         };
+        self.thin_for_intensity_map(&sweep, out);
+
         let k = config.neighbours.max(1);
-        let usable = |i: usize| {
-            image.valid[i]
-                && image.range[i] >= config.min_range
-                && image.range[i] <= config.max_range
-        };
-        // Firing order is azimuth order within each ring, so the last return kept per ring is
-        // the one to measure the spacing from.
-        let spacing_sq = config.intensity_map_spacing * config.intensity_map_spacing;
+        let limits = Thresholds::new(config, image, k);
+        let mut last_voxel = None;
+        for (members, positions) in image.ring_points.iter().zip(&image.ring_positions) {
+            if members.len() < 2 * k + 1 {
+                continue;
+            }
+            self.load_ring(&sweep, members);
+            self.flag_unreliable(positions, k);
+            self.measure_roughness(positions, k);
+            let sectors = config.sectors.max(1);
+            let per = self.roughness.len().div_ceil(sectors).max(1);
+            for sector in 0..sectors {
+                let lo = sector * per;
+                let hi = ((sector + 1) * per).min(self.roughness.len());
+                if lo >= hi {
+                    continue;
+                }
+                self.pick_edges(&sweep, &limits, members, lo..hi, k, out);
+                self.pick_planes_and_intensity_candidates(
+                    &sweep,
+                    &limits,
+                    (members, positions),
+                    lo..hi,
+                    &mut last_voxel,
+                    out,
+                );
+            }
+        }
+        self.keep_strongest_intensity(&sweep, out);
+    }
+
+    /// The intensity map's input: valid calibrated returns, `intensity_map_spacing` apart along
+    /// each ring. Firing order is azimuth order within each ring, so the last return kept per
+    /// ring is the one to measure the spacing from.
+    fn thin_for_intensity_map(&mut self, sweep: &SweepView<'_>, out: &mut SweepFeatures) {
+        let spacing = sweep.config.intensity_map_spacing;
+        let spacing_sq = spacing * spacing;
         self.last_kept.clear();
-        self.last_kept.resize(scan.rings, [f32::INFINITY; 3]);
-        for (i, p) in scan.points.iter().enumerate() {
-            if !usable(i) || !image.eta[i].is_finite() {
+        self.last_kept.resize(sweep.scan.rings, [f32::INFINITY; 3]);
+        for (i, p) in sweep.scan.points.iter().enumerate() {
+            if !sweep.usable(i) || !sweep.image.eta[i].is_finite() {
                 continue;
             }
             let Some(last) = self.last_kept.get_mut(usize::from(p.ring)) else {
@@ -130,214 +210,231 @@ impl FeatureSelector {
                 continue;
             }
             *last = p.position;
-            out.calibrated.push(feature(i));
+            out.calibrated.push(sweep.feature(i));
         }
+    }
 
-        // The noise floor at 1 m; it falls as 1/r.
-        let noise_at_1m = noise_floor(config, k, 1.0);
-        let noise = |r: f32| noise_at_1m / r.max(0.1);
-        let edge_threshold = config.edge_threshold * step_ratio.clamp(0.5, 4.0);
-        let plane_threshold = config.plane_threshold * step_ratio.clamp(0.5, 4.0);
-        let per_voxel = 1.0 / config.plane_voxel;
-        for (members, positions) in image.ring_points.iter().zip(&image.ring_positions) {
-            if members.len() < 2 * k + 1 {
-                continue;
-            }
-            self.roughness.clear();
-            // The ring's values side by side, read from the sweep's per-point arrays once: a
-            // ring is every sixteenth return, so each of the passes below would otherwise load
-            // every cache line of those arrays again.
-            let len = members.len();
-            self.ring_range.clear();
-            self.ring_usable.clear();
-            self.ring_eta.clear();
-            for &m in members {
-                let m = m as usize;
-                let eta = image.eta[m];
-                self.ring_range.push(image.range[m]);
-                self.ring_usable.push(usable(m));
-                self.ring_eta.push(if eta.is_finite() {
-                    [eta, 1.0]
-                } else {
-                    [0.0, 0.0]
-                });
-            }
-            for flags in [&mut self.unreliable, &mut self.suppressed] {
-                flags.clear();
-                flags.resize(len, false);
-            }
-            let ring_range = &self.ring_range;
-            // Rejection rules (LOAM): a depth jump to a neighbour makes the returns on the far
-            // side unreliable (they may be occluded next sweep); a return much nearer or farther
-            // than both neighbours lies on a surface seen edge-on.
-            for w in 1..len {
-                let (ra, rb) = (ring_range[w - 1], ring_range[w]);
-                let gap = (positions[w - 1] - positions[w]).norm();
-                if gap > 0.1 * ra.min(rb) + 0.1 {
-                    let (far_start, step): (usize, isize) =
-                        if ra > rb { (w - 1, -1) } else { (w, 1) };
-                    for s in 0..k {
-                        let idx = far_start as isize + step * s as isize;
-                        if let Some(flag) = usize::try_from(idx)
-                            .ok()
-                            .and_then(|x| self.unreliable.get_mut(x))
-                        {
-                            *flag = true;
-                        }
-                    }
-                }
-            }
-            for w in 1..len - 1 {
-                let rb = ring_range[w];
-                if (ring_range[w - 1] - rb).abs() > 0.02 * rb
-                    && (ring_range[w + 1] - rb).abs() > 0.02 * rb
-                {
-                    self.unreliable[w] = true;
-                }
-            }
-            let ring_eta = &self.ring_eta;
-            // Σ positions over the window [w − k, w + k], slid along the ring: in f64, so the
-            // additions and removals along a ring of 1800 returns leave no drift at f32's scale.
-            let wide = |v: &Vector3<f32>| v.cast::<f64>();
-            let mut window: Vector3<f64> = positions[..2 * k].iter().map(wide).sum();
-            for w in k..len - k {
-                window += wide(&positions[w + k]);
-                if w > k {
-                    window -= wide(&positions[w - k - 1]);
-                }
-                if !self.ring_usable[w] {
-                    continue;
-                }
-                let range = ring_range[w];
-                let p = positions[w];
-                // The window must be contiguous: no gap wider than a few steps.
-                let span = (positions[w - k] - positions[w + k]).norm();
-                if span > (2 * k) as f32 * 0.02 * range + 0.5 {
-                    continue;
-                }
-                // Σⱼ(pⱼ − pᵢ) over the 2k neighbours.
-                let sum = (window - wide(&p) * (2 * k + 1) as f64).cast::<f32>();
-                let [ei, known] = ring_eta[w];
-                let mut eta_diff = 0f32;
-                let mut eta_count = 0f32;
-                if known > 0.0 {
-                    // Branch-free over the whole window: an unknown η adds 0 to both sums; the
-                    // return itself adds |ei − ei| = 0 and one to the count, taken back after.
-                    for &[ej, known] in &ring_eta[w - k..w + k + 1] {
-                        eta_diff += known * (ej - ei).abs();
-                        eta_count += known;
-                    }
-                    eta_count -= 1.0;
-                }
-                let geometric = sum.norm() / ((2 * k) as f32 * range);
-                let intensity = if eta_count > 0.0 {
-                    eta_diff / (eta_count * 100.0)
-                } else {
-                    0.0
-                };
-                self.roughness.push((geometric, intensity, w as u32));
-            }
+    /// The ring's values side by side, read from the sweep's per-point arrays once: a ring is
+    /// every sixteenth return, so each of the passes over it would otherwise load every cache
+    /// line of those arrays again. Clears the ring's flags and roughness.
+    fn load_ring(&mut self, sweep: &SweepView<'_>, members: &[u32]) {
+        let image = sweep.image;
+        self.roughness.clear();
+        self.ring_range.clear();
+        self.ring_usable.clear();
+        self.ring_eta.clear();
+        for &m in members {
+            let m = m as usize;
+            let eta = image.eta[m];
+            self.ring_range.push(image.range[m]);
+            self.ring_usable.push(sweep.usable(m));
+            self.ring_eta.push(if eta.is_finite() {
+                [eta, 1.0]
+            } else {
+                [0.0, 0.0]
+            });
+        }
+        for flags in [&mut self.unreliable, &mut self.suppressed] {
+            flags.clear();
+            flags.resize(members.len(), false);
+        }
+    }
 
-            let sectors = config.sectors.max(1);
-            let per = self.roughness.len().div_ceil(sectors).max(1);
-            let combined =
-                |g: f32, i: f32| config.geometric_weight * g + config.intensity_weight * i;
-            for sector in 0..sectors {
-                let lo = sector * per;
-                let hi = ((sector + 1) * per).min(self.roughness.len());
-                if lo >= hi {
-                    continue;
-                }
-                let slice = &self.roughness[lo..hi];
-                // Edges: only reliable returns clear of the threshold by three times the noise
-                // can be one, so only those are ranked (ties by ring order, so the choice is
-                // deterministic).
-                self.edge_candidates.clear();
-                let unreliable = &self.unreliable;
-                self.edge_candidates.extend(
-                    slice
-                        .iter()
-                        .map(|&(g, i, w)| (combined(g, i), w))
-                        .filter(|&(sigma, w)| {
-                            let w = w as usize;
-                            sigma > edge_threshold + 3.0 * noise(ring_range[w]) && !unreliable[w]
-                        }),
-                );
-                self.edge_candidates
-                    .sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-                let mut edges = 0;
-                for &(_, w) in &self.edge_candidates {
-                    if edges >= config.edges_per_sector {
-                        break;
-                    }
-                    let w = w as usize;
-                    if self.suppressed[w] {
-                        continue;
-                    }
-                    out.edges.push(feature(members[w] as usize));
-                    edges += 1;
-                    // Suppress neighbours so edges spread along the ring.
-                    for flag in &mut self.suppressed[w.saturating_sub(k)..(w + k + 1).min(len)] {
+    /// LOAM's rejection rules: a depth jump to a neighbour makes the `k` returns on the far
+    /// side unreliable (they may be occluded next sweep); a return much nearer or farther than
+    /// both neighbours lies on a surface seen edge-on.
+    fn flag_unreliable(&mut self, positions: &[Vector3<f32>], k: usize) {
+        let ring_range = &self.ring_range;
+        let len = ring_range.len();
+        for w in 1..len {
+            let (ra, rb) = (ring_range[w - 1], ring_range[w]);
+            let gap = (positions[w - 1] - positions[w]).norm();
+            if gap > 0.1 * ra.min(rb) + 0.1 {
+                let (far_start, step): (usize, isize) = if ra > rb { (w - 1, -1) } else { (w, 1) };
+                for s in 0..k {
+                    let idx = far_start as isize + step * s as isize;
+                    if let Some(flag) = usize::try_from(idx)
+                        .ok()
+                        .and_then(|x| self.unreliable.get_mut(x))
+                    {
                         *flag = true;
                     }
                 }
-                for &(g, rough_i, w) in slice {
-                    let (w, i) = (w as usize, members[w as usize] as usize);
-                    if self.unreliable[w] {
-                        continue;
-                    }
-                    if g < plane_threshold + noise(ring_range[w]) && !self.suppressed[w] {
-                        // One plane per voxel: the least flat return that still passes (the
-                        // first of the sector's returns ranked roughest first, as selection
-                        // always did). Keeping the flattest instead was measured: yard seed 19
-                        // went from 0.56 to 1.01 % of drift, seed 7 from 0.69 to 0.65 %; a
-                        // return that looks flattest is partly one whose noise happened to
-                        // cancel.
-                        let p = positions[w];
-                        let key = (
-                            (p.x * per_voxel).floor() as i32,
-                            (p.y * per_voxel).floor() as i32,
-                            (p.z * per_voxel).floor() as i32,
-                        );
-                        // Successive returns of a ring mostly share a voxel: its plane's index
-                        // is kept from one to the next instead of hashed again.
-                        let at = match last_voxel {
-                            Some((voxel, at)) if voxel == key => Some(at),
-                            _ => match self.voxels.entry(key) {
-                                Entry::Vacant(v) => {
-                                    v.insert(out.planes.len());
-                                    last_voxel = Some((key, out.planes.len()));
-                                    out.planes.push(feature(i));
-                                    self.plane_roughness.push(g);
-                                    None
-                                }
-                                Entry::Occupied(o) => {
-                                    last_voxel = Some((key, *o.get()));
-                                    Some(*o.get())
-                                }
-                            },
-                        };
-                        if let Some(at) = at {
-                            if g > self.plane_roughness[at] {
-                                self.plane_roughness[at] = g;
-                                out.planes[at] = feature(i);
-                            }
+            }
+        }
+        for w in 1..len - 1 {
+            let rb = ring_range[w];
+            if (ring_range[w - 1] - rb).abs() > 0.02 * rb
+                && (ring_range[w + 1] - rb).abs() > 0.02 * rb
+            {
+                self.unreliable[w] = true;
+            }
+        }
+    }
+
+    /// Each usable return's (σᴳ, σᴵ, place along the ring) over a contiguous window of `k`
+    /// neighbours each side.
+    fn measure_roughness(&mut self, positions: &[Vector3<f32>], k: usize) {
+        let ring_range = &self.ring_range;
+        let ring_eta = &self.ring_eta;
+        let len = ring_range.len();
+        // Σ positions over the window [w − k, w + k], slid along the ring: in f64, so the
+        // additions and removals along a ring of 1800 returns leave no drift at f32's scale.
+        let wide = |v: &Vector3<f32>| v.cast::<f64>();
+        let mut window: Vector3<f64> = positions[..2 * k].iter().map(wide).sum();
+        for w in k..len - k {
+            window += wide(&positions[w + k]);
+            if w > k {
+                window -= wide(&positions[w - k - 1]);
+            }
+            if !self.ring_usable[w] {
+                continue;
+            }
+            let range = ring_range[w];
+            let p = positions[w];
+            // The window must be contiguous: no gap wider than a few steps.
+            let span = (positions[w - k] - positions[w + k]).norm();
+            if span > (2 * k) as f32 * 0.02 * range + 0.5 {
+                continue;
+            }
+            // Σⱼ(pⱼ − pᵢ) over the 2k neighbours.
+            let sum = (window - wide(&p) * (2 * k + 1) as f64).cast::<f32>();
+            let [ei, known] = ring_eta[w];
+            let mut eta_diff = 0f32;
+            let mut eta_count = 0f32;
+            if known > 0.0 {
+                // Branch-free over the whole window: an unknown η adds 0 to both sums; the
+                // return itself adds |ei − ei| = 0 and one to the count, taken back after.
+                for &[ej, known] in &ring_eta[w - k..w + k + 1] {
+                    eta_diff += known * (ej - ei).abs();
+                    eta_count += known;
+                }
+                eta_count -= 1.0;
+            }
+            let geometric = sum.norm() / ((2 * k) as f32 * range);
+            let intensity = if eta_count > 0.0 {
+                eta_diff / (eta_count * 100.0)
+            } else {
+                0.0
+            };
+            self.roughness.push((geometric, intensity, w as u32));
+        }
+    }
+
+    /// A sector's edges: only reliable returns whose combined σ clears the threshold by three
+    /// times the noise can be one, so only those are ranked (ties by ring order, so the choice
+    /// is deterministic); the roughest `edges_per_sector` are taken, each suppressing its `k`
+    /// neighbours either side so that edges spread along the ring.
+    fn pick_edges(
+        &mut self,
+        sweep: &SweepView<'_>,
+        limits: &Thresholds,
+        members: &[u32],
+        sector: std::ops::Range<usize>,
+        k: usize,
+        out: &mut SweepFeatures,
+    ) {
+        let config = sweep.config;
+        let combined = |g: f32, i: f32| config.geometric_weight * g + config.intensity_weight * i;
+        let (ring_range, unreliable) = (&self.ring_range, &self.unreliable);
+        self.edge_candidates.clear();
+        self.edge_candidates.extend(
+            self.roughness[sector]
+                .iter()
+                .map(|&(g, i, w)| (combined(g, i), w))
+                .filter(|&(sigma, w)| {
+                    let w = w as usize;
+                    sigma > limits.edge + 3.0 * limits.noise(ring_range[w]) && !unreliable[w]
+                }),
+        );
+        self.edge_candidates
+            .sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        let len = members.len();
+        let mut edges = 0;
+        for &(_, w) in &self.edge_candidates {
+            if edges >= config.edges_per_sector {
+                break;
+            }
+            let w = w as usize;
+            if self.suppressed[w] {
+                continue;
+            }
+            out.edges.push(sweep.feature(members[w] as usize));
+            edges += 1;
+            for flag in &mut self.suppressed[w.saturating_sub(k)..(w + k + 1).min(len)] {
+                *flag = true;
+            }
+        }
+    }
+
+    /// A sector's planes and intensity candidates. Planes: reliable returns, not next to an
+    /// edge, with σᴳ under the threshold plus the noise, one per voxel of `plane_voxel`: the
+    /// least flat return that still passes (the first of the sector's returns ranked roughest
+    /// first; keeping the flattest instead drifted more, see `docs/decisions.md`). Intensity
+    /// candidates: reliable returns with a known η and σᴵ over its threshold.
+    fn pick_planes_and_intensity_candidates(
+        &mut self,
+        sweep: &SweepView<'_>,
+        limits: &Thresholds,
+        (members, positions): (&[u32], &[Vector3<f32>]),
+        sector: std::ops::Range<usize>,
+        last_voxel: &mut Option<((i32, i32, i32), usize)>,
+        out: &mut SweepFeatures,
+    ) {
+        let config = sweep.config;
+        for &(g, rough_i, w) in &self.roughness[sector] {
+            let (w, i) = (w as usize, members[w as usize] as usize);
+            if self.unreliable[w] {
+                continue;
+            }
+            if g < limits.plane + limits.noise(self.ring_range[w]) && !self.suppressed[w] {
+                let p = positions[w];
+                let key = (
+                    (p.x * limits.per_voxel).floor() as i32,
+                    (p.y * limits.per_voxel).floor() as i32,
+                    (p.z * limits.per_voxel).floor() as i32,
+                );
+                // Successive returns of a ring mostly share a voxel: its plane's index is kept
+                // from one to the next instead of hashed again.
+                let at = match *last_voxel {
+                    Some((voxel, at)) if voxel == key => Some(at),
+                    _ => match self.voxels.entry(key) {
+                        Entry::Vacant(v) => {
+                            v.insert(out.planes.len());
+                            *last_voxel = Some((key, out.planes.len()));
+                            out.planes.push(sweep.feature(i));
+                            self.plane_roughness.push(g);
+                            None
                         }
-                    }
-                    if rough_i > config.intensity_roughness_threshold && ring_eta[w][1] > 0.0 {
-                        self.candidates.push((rough_i, i as u32));
+                        Entry::Occupied(o) => {
+                            *last_voxel = Some((key, *o.get()));
+                            Some(*o.get())
+                        }
+                    },
+                };
+                if let Some(at) = at {
+                    if g > self.plane_roughness[at] {
+                        self.plane_roughness[at] = g;
+                        out.planes[at] = sweep.feature(i);
                     }
                 }
             }
+            if rough_i > config.intensity_roughness_threshold && self.ring_eta[w][1] > 0.0 {
+                self.candidates.push((rough_i, i as u32));
+            }
         }
-        // The strongest intensity gradients, capped.
-        let cap = config.max_intensity_points.min(self.candidates.len());
+    }
+
+    /// The intensity points: the candidates with the strongest intensity gradients, at most
+    /// `max_intensity_points`.
+    fn keep_strongest_intensity(&mut self, sweep: &SweepView<'_>, out: &mut SweepFeatures) {
+        let cap = sweep.config.max_intensity_points.min(self.candidates.len());
         if cap < self.candidates.len() {
             self.candidates
                 .select_nth_unstable_by(cap, |a, b| b.0.total_cmp(&a.0));
         }
         for &(_, i) in &self.candidates[..cap] {
-            out.intensity.push(feature(i as usize));
+            out.intensity.push(sweep.feature(i as usize));
         }
     }
 }

@@ -1,0 +1,176 @@
+//! Association: each point's map correspondence (a line or plane fitted through its nearest
+//! map neighbours, with the residual's weight), kept between alignments of the same points.
+
+use super::*;
+
+/// A geometric correspondence fixed for one round: residual `e = P·(T·p − c)`, where `P` is the
+/// projection onto the line's normal space (edges) or onto the plane normal (planes).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Model {
+    pub(super) point: Vector3<f64>,
+    pub(super) center: Vector3<f64>,
+    pub(super) shape: Shape,
+    /// The residual's weight: its noise at a frontal surface over its noise here, squared
+    /// (see [`SolverConfig::angular_noise`]).
+    pub(super) weight: f64,
+}
+
+/// What a neighbourhood was fitted as.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Shape {
+    /// A line with this unit direction: `P = I − d·dᵀ`.
+    Line(Vector3<f64>),
+    /// A plane with this unit normal: `P = n·nᵀ`, a scalar residual `n·(T·p − c)`.
+    Plane(Vector3<f64>),
+}
+
+/// What an alignment found for each point — its map correspondence and where it was made, its
+/// eight intensity cells (and whether its intensity residual is in the round's set, see
+/// `IntensitySet`) — kept for another alignment of the same points against the same maps
+/// (the same sweep deskewed again, its points moved by millimetres): each point keeps what is
+/// still valid for it, by the rule of [`SolverConfig::reassociation_distance`].
+#[derive(Debug, Default, Clone)]
+pub struct Correspondences {
+    pub(super) edges: Links,
+    pub(super) planes: Links,
+    pub(super) intensity: Vec<IntensityLink>,
+}
+
+/// An intensity point's eight map cells, and whether it has a residual in the current round.
+#[derive(Debug, Default, Clone, Copy)]
+pub(super) struct IntensityLink {
+    pub(super) corners: Corners,
+    pub(super) active: bool,
+}
+
+/// Which intensity points a [`build`] gives a residual.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) enum IntensitySet {
+    /// Those the map covers at this pose (a round's first system): the set is recorded.
+    Select,
+    /// The recorded set (a trial within the round), so that its cost and the system's are sums
+    /// over the same residuals. A point entering or leaving the map's cover as the pose moves
+    /// by a millimetre would make the cost jump by its whole residual; Levenberg–Marquardt then
+    /// rejected step after step for a rise no damping could remove.
+    Keep,
+}
+
+impl Correspondences {
+    /// Forgets everything (a new sweep, or the maps changed).
+    pub fn clear(&mut self) {
+        for links in [&mut self.edges, &mut self.planes] {
+            links.at.clear();
+            links.models.clear();
+        }
+        self.intensity.clear();
+    }
+}
+
+/// Each point's correspondence and where (world frame) it was made. A point that has moved less
+/// than [`SolverConfig::reassociation_distance`] since keeps it: its nearest neighbours, 0.1 m
+/// or more apart in the map, would be the same, and the search is most of the solver's time.
+#[derive(Debug, Default, Clone)]
+pub(super) struct Links {
+    pub(super) at: Vec<Vector3<f64>>,
+    pub(super) models: Vec<Option<Model>>,
+}
+
+impl Links {
+    /// For each point that moved enough (all of them the first time), fits a model to its nearest
+    /// map neighbours at `pose`: `fit` turns the neighbourhood (centroid, covariance, the
+    /// neighbours) into the residual's projection, or rejects it.
+    pub(super) fn update(
+        &mut self,
+        pose: &Isometry3<f64>,
+        points: &[Vector3<f64>],
+        map: &LocalMap,
+        config: &SolverConfig,
+        neighbours: &mut Vec<Vector3<f32>>,
+        fit: impl Fn(&Vector3<f64>, &Matrix3<f64>, &[Vector3<f32>]) -> Option<Shape>,
+    ) -> usize {
+        let fresh = self.at.len() != points.len();
+        if fresh {
+            self.at.clear();
+            self.at.resize(points.len(), Vector3::zeros());
+            self.models.clear();
+            self.models.resize(points.len(), None);
+        }
+        let limit_sq = config.reassociation_distance.powi(2);
+        let mut updated = 0;
+        for (i, p) in points.iter().enumerate() {
+            let q = (pose * Point3::from(*p)).coords;
+            if !fresh && (q - self.at[i]).norm_squared() <= limit_sq {
+                continue;
+            }
+            self.at[i] = q;
+            self.models[i] = associate(pose, p, &q, map, config, neighbours, &fit);
+            updated += 1;
+        }
+        updated
+    }
+
+    /// Appends the current models to `models`; returns how many there are.
+    pub(super) fn collect(&self, models: &mut Vec<Model>) -> usize {
+        let before = models.len();
+        models.extend(self.models.iter().flatten());
+        models.len() - before
+    }
+}
+
+/// Fits a model for the point `p` (sensor frame), seen at `q` (world), to its nearest map
+/// neighbours.
+pub(super) fn associate(
+    pose: &Isometry3<f64>,
+    p: &Vector3<f64>,
+    q: &Vector3<f64>,
+    map: &LocalMap,
+    config: &SolverConfig,
+    neighbours: &mut Vec<Vector3<f32>>,
+    fit: &impl Fn(&Vector3<f64>, &Matrix3<f64>, &[Vector3<f32>]) -> Option<Shape>,
+) -> Option<Model> {
+    map.nearest(
+        &q.cast(),
+        config.neighbours,
+        config.max_neighbour_distance,
+        neighbours,
+    );
+    if neighbours.len() < config.neighbours {
+        return None;
+    }
+    let (center, covariance) = covariance(neighbours);
+    fit(&center, &covariance, neighbours).map(|shape| Model {
+        point: *p,
+        center,
+        shape,
+        weight: residual_weight(pose, p, &shape, config),
+    })
+}
+
+/// A geometric residual's weight from how much an angular error of the ray moves the point off
+/// its model. An angular error δ (the sweep's vibration and residual motion, the beam's width)
+/// displaces a return at range r by r·δ across its ray, and a plane sees the part along its
+/// normal, r·δ·sin α at incidence α: |p × n|·δ (a line, the part leaving it: |p × d|·δ). Range
+/// noise σ adds along the ray (taken whole, the map's own fit included), so the residual's
+/// variance is σ² + (|p × n|·δ)², and the weight σ² over that: 1 on a wall seen head-on, small
+/// for ground seen far away at a grazing angle, which a tilt of the sensor lifts by metres.
+pub(super) fn residual_weight(
+    pose: &Isometry3<f64>,
+    p: &Vector3<f64>,
+    shape: &Shape,
+    config: &SolverConfig,
+) -> f64 {
+    let direction = match shape {
+        Shape::Plane(n) => n,
+        Shape::Line(d) => d,
+    };
+    let local = pose.rotation.inverse_transform_vector(direction);
+    angular_weight(p.cross(&local).norm_squared(), config)
+}
+
+/// The weight σ² / (σ² + lever²·δ²) of a residual whose point (sensor frame) moves `lever` m per
+/// radian of ray error: |p × n| for a plane with normal n, |p × d| for a line along d (the
+/// part of an angular error that leaves the line). See [`residual_weight`].
+pub fn angular_weight(lever_sq: f64, config: &SolverConfig) -> f64 {
+    let noise = config.plane_noise * config.plane_noise;
+    noise / (noise + lever_sq * config.angular_noise * config.angular_noise)
+}
