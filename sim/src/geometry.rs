@@ -1,6 +1,9 @@
 //! Geometry of primitives: the shapes (rectangles, oriented boxes, vertical cylinders, thin
 //! poles, ramps), their bounds, ray intersection in f64, and the surface frame at a hit.
 //!
+//! Longer than most modules: each primitive's intersection, bounds and surface frame are kept
+//! together here so that the ray tracer's hot path is one file.
+//!
 //! Every surface has coordinates (u, v) in metres so that materials can paint it:
 //! - rectangle: face 0 is the side the normal `u × v` points to, face 1 the other; (u, v) from
 //!   the corner at `−half` along both axes;

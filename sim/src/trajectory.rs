@@ -2,6 +2,10 @@
 //! resampled every 2 cm of arc length), a speed profile bounded in speed, longitudinal and
 //! lateral acceleration and yaw rate, small pitch/roll/heave vibration, and the sensor's mount.
 //!
+//! Longer than most modules: the path, the speed profile, vibration, routes' variants (reverse,
+//! start fraction, kidnaps) and their closed-form timing depend on one another's grid and stay
+//! together.
+//!
 //! The speed profile is the classic two-pass one: the curvature caps the speed (lateral
 //! acceleration and yaw rate), then a forward and a backward pass cap the change of v² per metre
 //! by twice the acceleration limit. Between grid nodes v² is linear in arc length, i.e. the

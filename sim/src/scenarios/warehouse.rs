@@ -7,6 +7,9 @@
 //! doors, signs, posters and retro markers. A pedestrian and a forklift move where the robot does
 //! not drive. The robot loops around one double row of the first block; the other routes loop
 //! around one or two adjacent double rows of one or two adjacent blocks.
+//!
+//! Longer than most modules: a warehouse is built part by part (racks, bays, floor paint, walls,
+//! routes), and its layout reads best as one description.
 
 use std::f64::consts::{FRAC_PI_4, PI};
 
