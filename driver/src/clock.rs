@@ -5,6 +5,14 @@
 //! time (the pcap record time in replay, the host clock live), with the counter aligned to it by
 //! a tracked offset, because a sensor without GPS counts freely from power-on. Nothing here reads
 //! the wall clock, so a replay gives the same times on every run.
+//!
+//! Each packet gets two times ([`PacketTime`]): its **stamp**, on the anchor's clock as it is now
+//! (it follows a host clock step or a first GPS fix within a packet), and its **sensor time**, the
+//! counter on one continuous timeline anchored once, at the first packet (and again only when
+//! the counter itself restarts). Motion is computed on sensor time, so a host clock that steps
+//! under a running daemon (NTP or PTP correcting a wrong boot clock) never looks like motion, a
+//! gap or time running backwards; stamps are what consumers fuse with their other host-stamped
+//! data.
 
 use crate::nmea::{parse_rmc, NS_PER_S};
 use crate::wire::{PositionPacket, PpsStatus};
@@ -55,6 +63,22 @@ pub struct ClockStats {
     pub gps_fixes: u64,
 }
 
+/// A packet's two times (see the module docs), ns since the Unix epoch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PacketTime {
+    /// On the continuous timeline anchored at the first packet: for differences.
+    pub sensor_ns: u64,
+    /// On the anchor's clock as it is now: for stamps.
+    pub stamp_ns: u64,
+}
+
+impl PacketTime {
+    /// `stamp − sensor`: what turns a sensor time of this packet's into a stamp, ns.
+    pub fn stamp_offset_ns(&self) -> i64 {
+        (i128::from(self.stamp_ns) - i128::from(self.sensor_ns)) as i64
+    }
+}
+
 /// Converts device counters to Unix ns. See the module docs.
 #[derive(Debug, Clone)]
 pub struct Clock {
@@ -72,6 +96,11 @@ pub struct Clock {
     window_start_ns: u64,
     /// GPS anchor: Unix ns − unwrapped counter ns, from the last fix.
     gps_offset: Option<i128>,
+    /// Sensor time − unwrapped counter ns: the anchor at the first packet (or at the first
+    /// after the counter restarted).
+    timeline: Option<i128>,
+    /// The last step of the receive-time anchor not yet taken by [`Self::take_step`], ns.
+    step: Option<i128>,
     stats: ClockStats,
 }
 
@@ -94,8 +123,18 @@ impl Clock {
             previous_window_min: i128::MAX,
             window_start_ns: 0,
             gps_offset: None,
+            timeline: None,
+            step: None,
             stats: ClockStats::default(),
         }
+    }
+
+    /// How far the receive-time anchor stepped at its last re-synchronisation (the host clock
+    /// stepped, or the sensor was reset), once: positive forward, ns.
+    pub fn take_step(&mut self) -> Option<i64> {
+        self.step
+            .take()
+            .map(|s| s.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64)
     }
 
     /// Event counts so far.
@@ -157,17 +196,27 @@ impl Clock {
         true
     }
 
-    /// Unix ns of the counter value `counter_us` (a data packet's timestamp), received at
-    /// `receive_ns`.
+    /// The stamp of the counter value `counter_us` (a data packet's timestamp), received at
+    /// `receive_ns`: [`Self::packet_times`]' `stamp_ns`.
     pub fn packet_time(&mut self, counter_us: u32, receive_ns: u64) -> u64 {
+        self.packet_times(counter_us, receive_ns).stamp_ns
+    }
+
+    /// The stamp and the sensor time of the counter value `counter_us` (a data packet's
+    /// timestamp), received at `receive_ns`.
+    pub fn packet_times(&mut self, counter_us: u32, receive_ns: u64) -> PacketTime {
         let unwrapped_us = self.unwrap(counter_us, receive_ns);
         let device_ns = i128::from(unwrapped_us) * 1000;
         self.track_offset(device_ns, receive_ns);
-        if let Some(gps) = self.gps_offset {
-            return (device_ns + gps).max(0) as u64;
+        let anchor = match self.gps_offset {
+            Some(gps) => gps,
+            None => self.offset.expect("track_offset sets it"),
+        };
+        let timeline = *self.timeline.get_or_insert(anchor);
+        PacketTime {
+            sensor_ns: (device_ns + timeline).max(0) as u64,
+            stamp_ns: (device_ns + anchor).max(0) as u64,
         }
-        let offset = self.offset.expect("track_offset sets it");
-        (device_ns + offset).max(0) as u64
     }
 
     /// Unwraps the counter across hour wraps and counts jumps. Returns µs since the hour before
@@ -189,9 +238,11 @@ impl Clock {
                 } else {
                     self.stats.forward_jumps += 1;
                 }
-                // The counter restarted: neither anchor holds until re-established.
+                // The counter restarted: neither anchor holds until re-established, and the
+                // timeline starts again from the new anchor.
                 self.offset = None;
                 self.gps_offset = None;
+                self.timeline = None;
             } else if counter < last {
                 self.hours += 1;
                 self.stats.hour_wraps += 1;
@@ -214,6 +265,7 @@ impl Clock {
             self.stats.backward_jumps += 1;
             self.offset = None;
             self.gps_offset = None;
+            self.timeline = None;
         }
         self.last_counter = Some(counter);
         self.last_receive_ns = receive_ns;
@@ -230,6 +282,7 @@ impl Clock {
             // Delays do not last a second: the clocks moved apart (host clock step, sensor
             // reset). Start over from this packet.
             self.stats.resyncs += 1;
+            self.step = Some(sample - applied);
             self.restart_offset(sample, device_ns, receive_ns);
             return;
         }
@@ -281,6 +334,47 @@ mod tests {
         }
         assert_eq!(last, base_recv + 1999 * 1_327_000 + 100_000);
         assert_eq!(c.source(), TimeSource::ReceiveTime);
+    }
+
+    #[test]
+    fn a_host_clock_step_moves_the_stamps_at_once_and_never_the_sensor_time() {
+        for step_s in [2i64, -2, 3600, -3600] {
+            let mut c = Clock::new();
+            let base = 1_700_000_000 * NS_PER_S;
+            let receive = |i: u64, stepped: bool| {
+                let t = (base + i * 1_327_000 + 100_000) as i64;
+                (if stepped {
+                    t + step_s * NS_PER_S as i64
+                } else {
+                    t
+                }) as u64
+            };
+            let counter = |i: u64| (600_000_000 + i * 1327) as u32;
+            let mut last: Option<PacketTime> = None;
+            for i in 0..4000u64 {
+                let stepped = i >= 2000;
+                let t = c.packet_times(counter(i), receive(i, stepped));
+                if let Some(last) = last {
+                    // Sensor time advances by the counter, step or no step.
+                    assert_eq!(
+                        t.sensor_ns - last.sensor_ns,
+                        1_327_000,
+                        "{step_s} s, packet {i}"
+                    );
+                }
+                if i == 2000 {
+                    assert_eq!(c.take_step(), Some(step_s * NS_PER_S as i64), "{step_s} s");
+                }
+                if stepped {
+                    // The stamp follows the new clock from the first packet after the step.
+                    let error = t.stamp_ns as i64 - receive(i, true) as i64;
+                    assert!(error.abs() <= 100_000, "{step_s} s, packet {i}: {error} ns");
+                }
+                last = Some(t);
+            }
+            assert_eq!(c.take_step(), None);
+            assert_eq!(c.stats().resyncs, 1, "{step_s} s");
+        }
     }
 
     #[test]

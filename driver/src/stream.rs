@@ -150,6 +150,12 @@ impl SensorStream {
         &self.clock
     }
 
+    /// The size of the last step of the receive-time anchor (a host clock step, or a sensor
+    /// reset), once, ns: see [`Clock::take_step`].
+    pub fn take_clock_step(&mut self) -> Option<i64> {
+        self.clock.take_step()
+    }
+
     /// Where to return finished sweeps' buffers (once the model is decided).
     pub fn recycler(&self) -> Option<SweepRecycler> {
         self.assembler.as_ref().map(SweepAssembler::recycler)
@@ -287,7 +293,10 @@ impl SensorStream {
     }
 
     fn decode(&mut self, packet: &DataPacket<&[u8]>, receive_ns: u64) {
-        let time = self.clock.packet_time(packet.timestamp_us(), receive_ns);
+        let times = self.clock.packet_times(packet.timestamp_us(), receive_ns);
+        // Sweeps are assembled on sensor time: cuts, durations and point times never see a
+        // host clock step; each sweep carries what turns its times into stamps.
+        let time = times.sensor_ns;
         self.stats.return_mode = packet.return_mode().ok();
         self.stats.first_ns.get_or_insert(time);
         let assembler = self.assembler.as_mut().expect("decided before decoding");
@@ -307,7 +316,7 @@ impl SensorStream {
             }
         }
         self.last_packet = Some((time, azimuth));
-        assembler.push(packet, time, receive_ns);
+        assembler.push_stamped(packet, time, receive_ns, times.stamp_offset_ns());
     }
 }
 

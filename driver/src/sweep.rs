@@ -35,9 +35,17 @@ pub struct Sweep {
     pub partial: bool,
     /// Receive time of the last packet, ns (pcap record time in replay, host clock live).
     pub last_receive_ns: u64,
+    /// Point times are sensor times ([`crate::clock`]): adding this turns one into a stamp, as
+    /// the clock stood at the sweep's last packet, ns.
+    pub stamp_offset_ns: i64,
 }
 
 impl Sweep {
+    /// The stamp of a sensor time of this sweep's (see [`Self::stamp_offset_ns`]), ns.
+    pub fn stamp(&self, sensor_ns: u64) -> u64 {
+        (i128::from(sensor_ns) + i128::from(self.stamp_offset_ns)).max(0) as u64
+    }
+
     /// Packets expected: received plus missing.
     pub fn packets_expected(&self) -> u32 {
         self.packets_received + self.packets_missing
@@ -107,6 +115,7 @@ impl SweepAssembler {
                 last_packet_ns: None,
                 missing: 0,
                 receive_ns: 0,
+                stamp_offset_ns: 0,
                 counted: true,
             },
             ready: VecDeque::with_capacity(4),
@@ -127,12 +136,25 @@ impl SweepAssembler {
     }
 
     /// Adds one checked data packet whose first firing is at `packet_time_ns`, received at
-    /// `receive_ns`. Sweeps it completes are then available from [`Self::take_sweep`].
+    /// `receive_ns`, with stamps equal to times. Sweeps it completes are then available from
+    /// [`Self::take_sweep`].
     pub fn push<T: AsRef<[u8]>>(
         &mut self,
         packet: &DataPacket<T>,
         packet_time_ns: u64,
         receive_ns: u64,
+    ) {
+        self.push_stamped(packet, packet_time_ns, receive_ns, 0);
+    }
+
+    /// [`Self::push`] for a packet whose first firing is at sensor time `packet_time_ns` and
+    /// whose stamps are sensor times plus `stamp_offset_ns` ([`crate::clock::PacketTime`]).
+    pub fn push_stamped<T: AsRef<[u8]>>(
+        &mut self,
+        packet: &DataPacket<T>,
+        packet_time_ns: u64,
+        receive_ns: u64,
+        stamp_offset_ns: i64,
     ) {
         let mode = packet
             .return_mode()
@@ -156,6 +178,7 @@ impl SweepAssembler {
         }
         c.last_packet_ns = Some(packet_time_ns);
         c.receive_ns = receive_ns;
+        c.stamp_offset_ns = stamp_offset_ns;
         c.counted = false;
         self.decoder
             .decode_firings(packet, packet_time_ns, &mut self.points, |out, f| {
@@ -214,6 +237,8 @@ struct Cutter {
     /// been counted in the open sweep.
     missing: u32,
     receive_ns: u64,
+    /// The packet's stamp offset ([`Sweep::stamp_offset_ns`]).
+    stamp_offset_ns: i64,
     counted: bool,
 }
 
@@ -258,6 +283,7 @@ impl Cutter {
         }
         self.current.end_ns = self.current.end_ns.max(time_ns);
         self.current.last_receive_ns = self.current.last_receive_ns.max(self.receive_ns);
+        self.current.stamp_offset_ns = self.stamp_offset_ns;
         self.last_relative = relative;
     }
 
