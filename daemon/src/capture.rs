@@ -198,32 +198,34 @@ impl ForeignLog {
 
     /// A packet from `from` was refused at `now_ns`.
     pub fn note(&mut self, filter: &SourceFilter, from: IpAddr, now_ns: u64) {
-        let admitted = match filter.admitted() {
+        let new_source = !self.sources.contains(&from)
+            && self.sources.len() < glint_driver::source_filter::MAX_TRACKED_SOURCES;
+        let due = self
+            .last_ns
+            .is_none_or(|t| now_ns.saturating_sub(t) >= Self::EVERY_NS);
+        if !new_source && !due {
+            return;
+        }
+        let reading = match filter.admitted() {
             Admitted::Configured(a) => format!("{a} (configured)"),
             Admitted::Locked(a) => format!("{a} (the first to send valid data)"),
             Admitted::Undecided => "none yet".into(),
         };
         let refused = filter.stats().foreign();
-        let new_source = !self.sources.contains(&from)
-            && self.sources.len() < glint_driver::source_filter::MAX_TRACKED_SOURCES;
         if new_source {
             self.sources.push(from);
             tracing::warn!(
                 refused,
-                "packets from {from} refused: another sensor on the network? reading {admitted}"
+                "packets from {from} refused: another sensor on the network? reading {reading}"
             );
-            self.last_ns = Some(now_ns);
-        } else if self
-            .last_ns
-            .is_none_or(|t| now_ns.saturating_sub(t) >= Self::EVERY_NS)
-        {
+        } else {
             tracing::warn!(
                 refused,
                 sources = self.sources.len(),
-                "packets from other sources still refused; reading {admitted}"
+                "packets from other sources still refused; reading {reading}"
             );
-            self.last_ns = Some(now_ns);
         }
+        self.last_ns = Some(now_ns);
     }
 }
 
