@@ -59,7 +59,7 @@ extern "C" {
 
 /* ---- Payloads (ipc/README.md) ---------------------------------------------------------- */
 
-/** Status bits of glint_pose_v1.status and glint_status_v1.flags; bits 7-31 are reserved
+/** Status bits of glint_pose_v1.status and glint_status_v1.flags; bits 9-31 are reserved
  *  (written 0, to be ignored). */
 #define GLINT_STATUS_INITIALISING 0x01u /* starting up, no local map yet: do not steer by it */
 #define GLINT_STATUS_TRACKING 0x02u     /* scan matching converged on this sweep */
@@ -69,6 +69,7 @@ extern "C" {
 #define GLINT_STATUS_PREDICTED 0x20u    /* extrapolated, not measured */
 #define GLINT_STATUS_SENSOR_SILENT 0x40u /* no packets from the sensor recently */
 #define GLINT_STATUS_RELOCALISING 0x80u /* map pose not verified in the saved map */
+#define GLINT_STATUS_FOREIGN_SENSOR 0x100u /* another sensor's packets refused (shared network) */
 
 /** Values of glint_pose_v1.frame; treat other values as unknown. */
 #define GLINT_FRAME_ODOM 0u

@@ -1,7 +1,7 @@
 //! `include/glint.h` checked against the Rust side, not trusted: the system C compiler builds a
-//! program that prints what the header defines (sizes, field offsets and sizes, result codes),
-//! and the numbers must equal `size_of` / `offset_of!` on glint-ipc's structs and the codes in
-//! `error.rs`. The header must also compile cleanly, warnings as errors, as C99, C11 and C++11.
+//! program that prints what the header defines (sizes, field offsets and sizes, result codes,
+//! status flags), and the numbers must equal `size_of` / `offset_of!` on glint-ipc's structs, the
+//! codes in `error.rs` and glint-ipc's `StatusFlags`. The header must also compile cleanly, warnings as errors, as C99, C11 and C++11.
 
 use core::mem::{align_of, offset_of, size_of, size_of_val};
 use std::collections::BTreeMap;
@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use glint::error::CODES;
-use glint_ipc::{Pose, Status};
+use glint_ipc::{Pose, Status, StatusFlags};
 
 fn include_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("include")
@@ -67,9 +67,27 @@ fn probe_source() -> String {
         let name = name.to_str().expect("ASCII");
         s.push_str(&format!("printf(\"code.{name} %d\\n\", {name});\n"));
     }
+    for (_, name) in FLAGS {
+        s.push_str(&format!(
+            "printf(\"flag.{name} %u\\n\", (unsigned)GLINT_STATUS_{name});\n"
+        ));
+    }
     s.push_str("return 0;\n}\n");
     s
 }
+
+/// Every status flag, by its name in `glint.h` (after `GLINT_STATUS_`).
+const FLAGS: [(StatusFlags, &str); 9] = [
+    (StatusFlags::INITIALISING, "INITIALISING"),
+    (StatusFlags::TRACKING, "TRACKING"),
+    (StatusFlags::DEGENERATE, "DEGENERATE"),
+    (StatusFlags::LOST, "LOST"),
+    (StatusFlags::LOOP_CLOSED, "LOOP_CLOSED"),
+    (StatusFlags::PREDICTED, "PREDICTED"),
+    (StatusFlags::SENSOR_SILENT, "SENSOR_SILENT"),
+    (StatusFlags::RELOCALISING, "RELOCALISING"),
+    (StatusFlags::FOREIGN_SENSOR, "FOREIGN_SENSOR"),
+];
 
 const POSE_FIELDS: [&str; 11] = [
     "sequence",
@@ -171,6 +189,9 @@ fn rust_layout() -> BTreeMap<String, i64> {
             i64::from(code),
         );
     }
+    for (flag, name) in FLAGS {
+        m.insert(format!("flag.{name}"), i64::from(flag.bits()));
+    }
     m
 }
 
@@ -193,6 +214,9 @@ fn header_layout_and_codes_equal_the_rust_side() {
     assert_eq!(c, rust);
     assert_eq!(c["pose.size"], 424);
     assert_eq!(c["status.size"], 80);
+    // Every bit this version defines is mirrored.
+    let all = FLAGS.iter().fold(StatusFlags::NONE, |a, (f, _)| a.with(*f));
+    assert_eq!(all, StatusFlags::KNOWN);
     std::fs::remove_dir_all(dir).expect("clean up");
 }
 

@@ -1,6 +1,8 @@
 //! Replaying a capture through the driver for the inspection commands: the sensor options they
-//! share, and one loop from file to sweeps with everything counted.
+//! share, and one loop from file to sweeps with everything counted, one sensor's packets
+//! admitted and any other's refused.
 
+use std::net::{IpAddr, Ipv4Addr};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
@@ -8,8 +10,8 @@ use clap::Args;
 use glint_driver::calibration::load_calibration;
 use glint_driver::pcap::{CaptureError, CaptureStats};
 use glint_driver::{
-    Model, PacketKind, PcapSource, Ports, SensorStream, StreamConfig, StreamError, Sweep,
-    SweepConfig,
+    Admitted, Model, PacketKind, PcapSource, Ports, SensorStream, SourceFilter, StreamConfig,
+    StreamError, Sweep, SweepConfig, Verdict,
 };
 
 /// Options that say how to read the sensor's packets.
@@ -31,6 +33,10 @@ pub struct SensorArgs {
     /// Azimuth where sweeps are cut, degrees clockwise from the sensor's +x axis.
     #[arg(long, default_value_t = 0.0)]
     pub cut_azimuth: f64,
+    /// Read only the packets sent from this IPv4 address (the sensor's). By default the first
+    /// source to send a valid data packet is read and any other is refused and counted.
+    #[arg(long, value_name = "ADDR")]
+    pub source: Option<Ipv4Addr>,
 }
 
 impl SensorArgs {
@@ -73,6 +79,8 @@ pub struct CaptureReport {
     pub port_counts: (u64, u64, u64),
     /// Records the capture reader skipped.
     pub capture: CaptureStats,
+    /// Which source was read, packets per source, and what was refused.
+    pub sources: SourceFilter,
     /// The error that ended the capture early, if any (everything before it was decoded).
     pub damage: Option<CaptureError>,
 }
@@ -87,7 +95,8 @@ pub fn replay(
         path,
         sensor.ports(),
         sensor.stream_config()?,
-        |_, _| true,
+        sensor.source,
+        |_, _, _| true,
         |sweep, stream| {
             on_sweep(&sweep)?;
             if let Some(r) = stream.recycler() {
@@ -98,16 +107,21 @@ pub fn replay(
     )
 }
 
-/// Replays `path` through a fresh stream configured by `config`. `on_packet` sees each sensor
-/// packet's record time and the stream before the packet is decoded (for pacing and counters)
-/// and returns false to stop early; `on_sweep` takes each sweep as it is closed.
+/// Replays `path` through a fresh stream configured by `config`, reading the packets of
+/// `source` (None: of the first source to send valid data). `on_packet` sees each sensor
+/// packet's record time, the stream and the filter before the packet is judged and decoded (for
+/// pacing and counters) and returns false to stop early; `on_sweep` takes each sweep as it is
+/// closed.
 pub fn replay_stream(
     path: &Path,
     ports: Ports,
     config: StreamConfig,
-    mut on_packet: impl FnMut(u64, &SensorStream) -> bool,
+    source: Option<Ipv4Addr>,
+    mut on_packet: impl FnMut(u64, &SensorStream, &SourceFilter) -> bool,
     mut on_sweep: impl FnMut(Sweep, &SensorStream) -> Result<()>,
 ) -> Result<CaptureReport> {
+    let mut filter = SourceFilter::new(source.map(IpAddr::V4));
+    let mut foreign_log = ForeignLog::default();
     let mut source = PcapSource::open(path, ports)
         .with_context(|| format!("cannot replay {}", path.display()))?;
     let mut stream = SensorStream::new(config);
@@ -131,12 +145,25 @@ pub fn replay_stream(
     let damage = loop {
         match source.next() {
             Ok(Some(p)) => {
-                if !on_packet(p.receive_ns, &stream) {
+                if !on_packet(p.receive_ns, &stream, &filter) {
                     break None;
                 }
-                let result = match p.kind {
-                    PacketKind::Data => stream.push_data(p.payload, p.receive_ns),
-                    PacketKind::Position => stream.push_position(p.payload),
+                let from = IpAddr::V4(p.source);
+                let verdict = filter.judge(p.kind, from, p.payload, p.receive_ns);
+                while let Some(held) = filter.take_released() {
+                    let result = stream.push_position(held.payload());
+                    handle(&mut stream, result)?;
+                }
+                let result = match (verdict, p.kind) {
+                    (Verdict::Accept, PacketKind::Data) => {
+                        stream.push_data(p.payload, p.receive_ns)
+                    }
+                    (Verdict::Accept, PacketKind::Position) => stream.push_position(p.payload),
+                    (Verdict::Foreign, _) => {
+                        foreign_log.note(&filter, from, p.receive_ns);
+                        Ok(())
+                    }
+                    (Verdict::Held, _) => Ok(()),
                 };
                 handle(&mut stream, result)?;
             }
@@ -149,7 +176,95 @@ pub fn replay_stream(
     Ok(CaptureReport {
         port_counts: source.port_counts(),
         capture: source.capture_stats(),
+        sources: filter,
         stream,
         damage,
     })
+}
+
+/// How long after the last refused packet a run still flags another sensor, ns.
+pub const FOREIGN_WINDOW_NS: u64 = 2_000_000_000;
+
+/// Refused packets logged sparingly: the first from each source, then one line at most every
+/// `EVERY_NS` with the count so far.
+#[derive(Debug, Default)]
+pub struct ForeignLog {
+    sources: Vec<IpAddr>,
+    last_ns: Option<u64>,
+}
+
+impl ForeignLog {
+    const EVERY_NS: u64 = 10_000_000_000;
+
+    /// A packet from `from` was refused at `now_ns`.
+    pub fn note(&mut self, filter: &SourceFilter, from: IpAddr, now_ns: u64) {
+        let new_source = !self.sources.contains(&from)
+            && self.sources.len() < glint_driver::source_filter::MAX_TRACKED_SOURCES;
+        let due = self
+            .last_ns
+            .is_none_or(|t| now_ns.saturating_sub(t) >= Self::EVERY_NS);
+        if !new_source && !due {
+            return;
+        }
+        let reading = match filter.admitted() {
+            Admitted::Configured(a) => format!("{a} (configured)"),
+            Admitted::Locked(a) => format!("{a} (the first to send valid data)"),
+            Admitted::Undecided => "none yet".into(),
+        };
+        let refused = filter.stats().foreign();
+        if new_source {
+            self.sources.push(from);
+            tracing::warn!(
+                refused,
+                "packets from {from} refused: another sensor on the network? reading {reading}"
+            );
+        } else {
+            tracing::warn!(
+                refused,
+                sources = self.sources.len(),
+                "packets from other sources still refused; reading {reading}"
+            );
+        }
+        self.last_ns = Some(now_ns);
+    }
+}
+
+/// Whether a packet from another source was refused within [`FOREIGN_WINDOW_NS`] of `now_ns`.
+pub fn foreign_active(filter: &SourceFilter, now_ns: u64) -> bool {
+    filter
+        .stats()
+        .last_foreign_ns
+        .is_some_and(|t| now_ns.saturating_sub(t) < FOREIGN_WINDOW_NS)
+}
+
+/// Lines describing the sources of a capture: one per source address with its packets, and
+/// which one was read (for `info` and `replay`).
+pub fn describe_sources(filter: &SourceFilter) -> Vec<String> {
+    let admitted = filter.admitted();
+    let mut lines = vec![match admitted {
+        Admitted::Configured(a) => format!("source: {a} (--source); other sources refused"),
+        Admitted::Locked(a) => {
+            format!("source: {a} (the first to send valid data); other sources refused")
+        }
+        Admitted::Undecided => "source: none (no valid data packet)".into(),
+    }];
+    for s in filter.sources() {
+        let read = if Some(s.address) == admitted.address() {
+            "read"
+        } else {
+            "refused"
+        };
+        lines.push(format!(
+            "  from {}: {} data, {} position packets ({read})",
+            s.address, s.data, s.position
+        ));
+    }
+    let st = filter.stats();
+    if st.untracked > 0 {
+        lines.push(format!(
+            "  from further sources: {} packets (refused)",
+            st.untracked
+        ));
+    }
+    lines
 }

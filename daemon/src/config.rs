@@ -104,6 +104,9 @@ pub fn initial_pose(xy_yaw: &[f64], base_from_sensor: &Isometry3<f64>) -> Result
 pub struct SensorConfig {
     /// Local address to bind (0.0.0.0: every interface).
     pub address: IpAddr,
+    /// The sensor's own address: only packets sent from it are decoded. None: the first
+    /// address to send a valid data packet, any other refused and counted (`FOREIGN_SENSOR`).
+    pub source: Option<Ipv4Addr>,
     /// UDP port of data packets.
     pub data_port: u16,
     /// UDP port of position packets.
@@ -129,6 +132,7 @@ impl Default for SensorConfig {
         let udp = UdpConfig::default();
         Self {
             address: udp.bind,
+            source: None,
             data_port: udp.ports.data,
             position_port: udp.ports.position,
             multicast_group: None,
@@ -291,6 +295,11 @@ impl DaemonConfig {
             m.parse::<Model>()
                 .map_err(|e| anyhow::anyhow!("sensor.model = {m:?}: {e}"))?;
         }
+        if let Some(a) = s.source {
+            if a.is_unspecified() || a.is_multicast() || a.is_broadcast() {
+                bail!("sensor.source = {a}: the sensor's own address, not a group or wildcard");
+            }
+        }
         if let Some(g) = s.multicast_group {
             if !g.is_multicast() {
                 bail!("sensor.multicast_group = {g}: not a multicast address");
@@ -432,6 +441,18 @@ mod tests {
         let text = include_str!("../../systemd/glintd.toml");
         let c = DaemonConfig::parse(text).unwrap();
         assert_eq!(c.ipc.predicted_rate_hz, 50.0);
+    }
+
+    #[test]
+    fn the_source_is_the_senders_address() {
+        let c = DaemonConfig::parse("[sensor]\nsource = \"192.168.1.201\"\n").unwrap();
+        assert_eq!(c.sensor.source, Some(Ipv4Addr::new(192, 168, 1, 201)));
+        assert_eq!(DaemonConfig::parse("").unwrap().sensor.source, None);
+        for bad in ["0.0.0.0", "255.255.255.255", "239.255.0.1", "::1", "sensor"] {
+            let text = format!("[sensor]\nsource = \"{bad}\"\n");
+            let e = format!("{:#}", DaemonConfig::parse(&text).unwrap_err());
+            assert!(e.contains("source"), "{bad}: {e}");
+        }
     }
 
     #[test]

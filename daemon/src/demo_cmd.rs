@@ -76,6 +76,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
             data_port: 2368,
             position_port: 8308,
             cut_azimuth: 0.0,
+            source: None,
         },
     })?;
     say!(

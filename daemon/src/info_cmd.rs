@@ -6,7 +6,7 @@ use anyhow::Result;
 use clap::Args;
 use glint_driver::clock::TimeSource;
 
-use crate::capture::{replay, SensorArgs};
+use crate::capture::{describe_sources, replay, SensorArgs};
 
 /// Arguments of `glintd info`.
 #[derive(Args, Debug)]
@@ -30,6 +30,9 @@ pub fn run(args: InfoArgs) -> Result<()> {
     let (data, position, other) = report.port_counts;
     let cap = report.capture;
     say!("capture: {}", args.capture.display());
+    for line in describe_sources(&report.sources) {
+        say!("{line}");
+    }
     match report.stream.detection() {
         Some(d) => say!("model: {}", d.describe()),
         None => say!("model: undecided (no data packets)"),
@@ -43,6 +46,14 @@ pub fn run(args: InfoArgs) -> Result<()> {
         args.sensor.data_port,
         args.sensor.position_port
     );
+    let refused = report.sources.stats();
+    if refused.foreign() > 0 {
+        say!(
+            "refused from other sources: {} data, {} position packets (the figures below are the source read's)",
+            refused.foreign_data,
+            refused.foreign_position
+        );
+    }
     say!(
         "skipped traffic: {} records not UDP/IPv4 ({} not IPv4, {} not UDP, {} fragments, {} unsupported link, {} malformed frames), {other} datagrams to other ports",
         cap.skipped(),

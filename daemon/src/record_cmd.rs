@@ -37,8 +37,8 @@ pub struct RecordArgs {
     pub position_port: Option<u16>,
 }
 
-/// The receiver does not keep the sender's address; recordings name the VLP-16's factory
-/// address as the source, which no reader of ours depends on.
+/// The source written for a sender with no IPv4 address (an IPv6 socket's peer): the VLP-16's
+/// factory address.
 const SENSOR_ADDRESS: Ipv4Addr = Ipv4Addr::new(192, 168, 1, 201);
 
 /// Runs the command.
@@ -98,7 +98,9 @@ pub fn run(args: RecordArgs) -> Result<()> {
             .write_udp(
                 d.receive_ns,
                 UdpEndpoints {
-                    source: (SENSOR_ADDRESS, port),
+                    // The sender's own address, so a capture of a shared network tells the
+                    // sensors apart (`glintd info`).
+                    source: (sender_v4(d.source), port),
                     destination: (destination, port),
                 },
                 d.payload(),
@@ -116,4 +118,11 @@ pub fn run(args: RecordArgs) -> Result<()> {
         counters.wrong_length.load(Ordering::Relaxed)
     );
     Ok(())
+}
+
+fn sender_v4(address: std::net::IpAddr) -> Ipv4Addr {
+    match address.to_canonical() {
+        std::net::IpAddr::V4(a) => a,
+        std::net::IpAddr::V6(_) => SENSOR_ADDRESS,
+    }
 }

@@ -15,7 +15,7 @@ use glint_core::metrics::{
 use glint_core::trajectory::{parse_tum, StampedPose};
 use nalgebra::Vector3;
 
-use crate::capture::SensorArgs;
+use crate::capture::{describe_sources, SensorArgs};
 use crate::config::DaemonConfig;
 use crate::pipeline::{self, Input, Options, Pace, PublishOptions, SiteMapOptions};
 
@@ -156,6 +156,7 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         input: Input::Capture {
             path: args.capture.clone(),
             ports: args.sensor.ports(),
+            source: args.sensor.source,
             pace: args.pace,
         },
         stream: args.sensor.stream_config()?,
@@ -194,6 +195,21 @@ pub fn run(args: ReplayArgs) -> Result<()> {
             "seeded from ground truth: alignment moves the pose off the truth by mean ({:.4}, {:.4}, {:.4}) m, rms ({:.4}, {:.4}, {:.4}) m (sensor x, y, z)",
             mean.x, mean.y, mean.z, rms.x, rms.y, rms.z
         );
+    }
+    if let Some(capture) = &summary.capture {
+        // Said only when it matters: a capture of one sensor reports as it always has.
+        let sources = &capture.sources;
+        if sources.sources().len() > 1 || sources.stats().foreign() > 0 {
+            let st = sources.stats();
+            say!(
+                "other sensors: {} data and {} position packets refused",
+                st.foreign_data,
+                st.foreign_position
+            );
+            for line in describe_sources(sources) {
+                say!("{line}");
+            }
+        }
     }
     let n = timings.total.len();
     say!(

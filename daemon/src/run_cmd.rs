@@ -88,6 +88,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         site_map,
         input: Input::Live {
             udp: config.udp_config(),
+            source: config.sensor.source,
             silence: Duration::from_secs_f64(config.sensor.silence_timeout_s),
         },
         stream,

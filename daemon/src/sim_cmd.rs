@@ -5,6 +5,7 @@
 //! Flags are parsed here and validated once into a `glint_sim::SimConfig`; the simulation
 //! itself lives in `glint-sim`.
 
+use std::net::{IpAddr, Ipv4Addr};
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
@@ -83,6 +84,13 @@ pub struct SimArgs {
     /// Destination port of position packets when streaming.
     #[arg(long, default_value_t = 8308)]
     pub position_port: u16,
+    /// The sensor's IPv4 address written as the source of the capture's packets.
+    #[arg(long, value_name = "ADDR", default_value_t = glint_sim::output::SENSOR_ADDRESS)]
+    pub source_address: Ipv4Addr,
+    /// Local address to stream from (e.g. 127.0.0.2 and 127.0.0.3 for two simulated sensors
+    /// on loopback). Default: the kernel's choice.
+    #[arg(long, value_name = "ADDR")]
+    pub udp_bind: Option<IpAddr>,
     /// Drive another closed route through the same scene (same layout, same frame), chosen by
     /// this seed. Default: the scenario's own route.
     #[arg(long, value_name = "M")]
@@ -177,6 +185,7 @@ pub fn run(args: SimArgs) -> Result<()> {
         host: host.clone(),
         data_port: args.data_port,
         position_port: args.position_port,
+        bind: args.udp_bind,
     });
     if let Some(t) = &target {
         eprintln!(
@@ -188,6 +197,7 @@ pub fn run(args: SimArgs) -> Result<()> {
         out_dir: args.out.as_deref(),
         udp: target.as_ref(),
         stop: None,
+        source_address: Some(args.source_address),
     };
     let summary = glint_sim::run(&config, &options)
         .with_context(|| format!("simulating {}", config.scenario))?;
@@ -228,6 +238,8 @@ mod tests {
             (a.seed, a.seconds, a.rpm, a.data_port, a.position_port),
             (1, 60.0, 600.0, 2368, 8308)
         );
+        assert_eq!(a.source_address, Ipv4Addr::new(192, 168, 1, 201));
+        assert_eq!(a.udp_bind, None);
         let c = a.config().unwrap();
         assert_eq!(c.return_mode, ReturnMode::Strongest);
         assert!(c.noise && c.start_time_ns.is_none());
@@ -303,6 +315,27 @@ mod tests {
         assert_eq!(c.return_mode, ReturnMode::Dual);
         assert!(!c.noise);
         assert_eq!(c.start_time_ns, Some(1_714_564_800_000_000_000));
+    }
+
+    #[test]
+    fn network_flags_parse() {
+        let a = parse(&[
+            "yard",
+            "--source-address",
+            "192.168.1.202",
+            "--udp-bind",
+            "127.0.0.3",
+        ]);
+        assert_eq!(a.source_address, Ipv4Addr::new(192, 168, 1, 202));
+        assert_eq!(a.udp_bind, Some(IpAddr::V4(Ipv4Addr::new(127, 0, 0, 3))));
+        let cli = |args: &[&str]| {
+            Cli::try_parse_from(std::iter::once("sim").chain(args.iter().copied())).is_err()
+        };
+        assert!(cli(&["yard", "--source-address", "::1"]), "IPv4 only");
+        assert!(
+            cli(&["yard", "--udp-bind", "localhost"]),
+            "an address, not a name"
+        );
     }
 
     #[test]

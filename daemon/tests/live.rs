@@ -1,6 +1,7 @@
 //! The daemon as it runs on the robot: `glintd run` receiving a simulated sensor over UDP on
 //! localhost at real-time pace, consumers in separate processes, signals, and the faults a fleet
-//! meets (garbage on the port, lost packets, a silent sensor, consumers and daemons killed).
+//! meets (garbage on the port, lost packets, a silent sensor, consumers and daemons killed,
+//! another sensor on the network).
 
 use std::io::{BufRead, BufReader};
 use std::net::UdpSocket;
@@ -568,6 +569,73 @@ fn record_captures_what_the_sensor_sends() {
     );
     assert!(text.contains("model: VLP-16"), "{text}");
     assert!(text.contains("0 packets missing"), "{text}");
+    assert!(
+        text.contains("source: 127.0.0.1 (the first to send valid data)"),
+        "the sender's address is recorded: {text}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn two_sensors_on_loopback_only_the_configured_one_is_tracked() {
+    let _serial = real_time();
+    let dir = scratch("two-sensors");
+    let ports = free_ports();
+    let d = domain("two-sensors");
+    let config = write_config(&dir, ports, &d);
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(
+        &config,
+        text.replace("[sensor]\n", "[sensor]\nsource = \"127.0.0.2\"\n"),
+    )
+    .unwrap();
+    let (mut daemon, log) = start_daemon(&config);
+    let status = spawn_echo(&d, "status", 14.0);
+    let sensor = |bind: &str, seed: &str| {
+        glintd()
+            .args(["sim", "warehouse", "--seconds", "5", "--seed", seed])
+            .args(["--udp", "127.0.0.1", "--udp-bind", bind])
+            .args(["--data-port", &ports.0.to_string()])
+            .args(["--position-port", &ports.1.to_string()])
+            .arg("--out")
+            .arg(dir.join(bind))
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    // The other sensor starts first: naming ours is what keeps it out.
+    let other = sensor("127.0.0.3", "36");
+    std::thread::sleep(Duration::from_millis(300));
+    let ours = sensor("127.0.0.2", "35");
+    for s in [other, ours] {
+        let o = s.wait_with_output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let (exit, _) = terminate(&mut daemon);
+    assert!(exit.success(), "glintd run exited with {exit}");
+    let log: Vec<String> = log.try_iter().collect();
+    assert!(
+        log.iter()
+            .any(|l| l.contains("packets from 127.0.0.3 refused")),
+        "{}",
+        log.join("\n")
+    );
+    let statuses = echoed_lines(status);
+    assert!(
+        statuses.iter().any(|l| l.contains("FOREIGN_SENSOR")),
+        "{statuses:?}"
+    );
+    let trajectory = read_tum(&dir.join("trajectory.tum"));
+    assert!(
+        trajectory.len() >= 35,
+        "{} poses from 5 s",
+        trajectory.len()
+    );
+    let groundtruth = read_tum(&dir.join("127.0.0.2/groundtruth.tum"));
+    let ate = ate_rmse(&associate(&trajectory, &groundtruth)).unwrap();
+    assert!(ate.rmse < 0.10, "{ate}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

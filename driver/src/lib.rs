@@ -10,6 +10,7 @@
 //! - [`sweep`]: rotations cut at a configurable azimuth, gaps counted.
 //! - [`stream`]: the above wired together for a stream of UDP payloads.
 //! - [`pcap`] and [`udp`]: where payloads come from (captures, the network) and pcap writing.
+//! - [`source_filter`]: one sensor's packets on a network shared with others.
 //!
 //! Knows nothing about SLAM.
 
@@ -20,6 +21,7 @@ pub mod model;
 pub mod nmea;
 pub mod pcap;
 pub mod source;
+pub mod source_filter;
 pub mod stream;
 pub mod sweep;
 pub mod udp;
@@ -28,6 +30,7 @@ pub mod wire;
 pub use decode::{Decoder, Point, ReturnKind};
 pub use model::{Detection, Model};
 pub use source::{PacketKind, PcapSource, Ports, SensorPayload};
+pub use source_filter::{Admitted, SourceFilter, Verdict};
 pub use stream::{SensorStream, StreamConfig, StreamError, StreamStats};
 pub use sweep::{Sweep, SweepConfig, SweepRecycler};
 pub use wire::{DataPacket, PacketError, PositionPacket, ReturnMode};

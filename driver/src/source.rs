@@ -1,6 +1,7 @@
 //! Where sensor payloads come from in replay: a capture file, with datagrams routed to the data
 //! or position stream by destination port and everything else counted.
 
+use std::net::Ipv4Addr;
 use std::path::Path;
 
 use crate::pcap::{CaptureError, CaptureReader, CaptureStats};
@@ -37,6 +38,8 @@ pub enum PacketKind {
 pub struct SensorPayload<'a> {
     /// Data or position.
     pub kind: PacketKind,
+    /// The sender's IPv4 address.
+    pub source: Ipv4Addr,
     /// The UDP payload.
     pub payload: &'a [u8],
     /// When it was received, ns since the epoch (here: the capture's record time).
@@ -74,21 +77,22 @@ impl PcapSource {
     /// the capture early (the payloads before it have all been returned).
     #[allow(clippy::should_implement_trait)]
     pub fn next(&mut self) -> Result<Option<SensorPayload<'_>>, CaptureError> {
-        let (kind, receive_ns) = loop {
+        let (kind, receive_ns, source) = loop {
             let Some(d) = self.reader.next()? else {
                 return Ok(None);
             };
             if d.destination_port == self.ports.data {
                 self.data += 1;
-                break (PacketKind::Data, d.time_ns);
+                break (PacketKind::Data, d.time_ns, d.source);
             } else if d.destination_port == self.ports.position {
                 self.position += 1;
-                break (PacketKind::Position, d.time_ns);
+                break (PacketKind::Position, d.time_ns, d.source);
             }
             self.other_ports += 1;
         };
         Ok(Some(SensorPayload {
             kind,
+            source,
             payload: self.reader.payload(),
             receive_ns,
         }))

@@ -54,6 +54,8 @@ pub struct Datagram {
     pub kind: PacketKind,
     /// Host clock at receipt, ns since the epoch.
     pub receive_ns: u64,
+    /// The sender's address (which sensor, on a network shared by several).
+    pub source: IpAddr,
     len: usize,
     bytes: [u8; MAX_DATAGRAM],
 }
@@ -63,6 +65,7 @@ impl std::fmt::Debug for Datagram {
         f.debug_struct("Datagram")
             .field("kind", &self.kind)
             .field("receive_ns", &self.receive_ns)
+            .field("source", &self.source)
             .field("len", &self.len)
             .finish()
     }
@@ -233,8 +236,8 @@ fn receive_loop(
     };
     let mut buf = [0u8; 2048];
     while !stop.load(Ordering::Relaxed) {
-        let len = match socket.recv(&mut buf) {
-            Ok(len) => len,
+        let (len, from) = match socket.recv_from(&mut buf) {
+            Ok(received) => received,
             Err(e)
                 if matches!(
                     e.kind(),
@@ -263,6 +266,7 @@ fn receive_loop(
         let mut d = Datagram {
             kind,
             receive_ns,
+            source: from.ip(),
             len,
             bytes: [0; MAX_DATAGRAM],
         };
@@ -326,6 +330,7 @@ mod tests {
                 POSITION_PAYLOAD_LEN
             };
             assert_eq!(d.payload().len(), expected);
+            assert_eq!(d.source, IpAddr::V4(Ipv4Addr::LOCALHOST));
         }
         source.stop();
     }

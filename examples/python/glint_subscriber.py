@@ -69,6 +69,7 @@ FLAGS = [
     (1 << 5, "PREDICTED"),
     (1 << 6, "SENSOR_SILENT"),
     (1 << 7, "RELOCALISING"),
+    (1 << 8, "FOREIGN_SENSOR"),
 ]
 
 

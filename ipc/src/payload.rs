@@ -21,7 +21,7 @@ use thiserror::Error;
 
 /// Status bits shared by [`Pose::status`] and [`Status::flags`].
 ///
-/// Bits 7..=31 are reserved: the publisher writes 0, consumers must ignore them (new bits may be
+/// Bits 9..=31 are reserved: the publisher writes 0, consumers must ignore them (new bits may be
 /// added without a new type name; their absence must stay safe to assume).
 #[repr(C)]
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq, Hash, ZeroCopySend)]
@@ -52,9 +52,12 @@ impl StatusFlags {
     /// tracking was lost, after a kidnap): the `map` pose is not to be steered by. Never set
     /// together with `TRACKING` on `map`.
     pub const RELOCALISING: Self = Self(1 << 7);
+    /// Bit 8: packets from another sensor (another source address) reach the sensor's ports
+    /// and are being refused: a shared network; set `[sensor] source` to name ours.
+    pub const FOREIGN_SENSOR: Self = Self(1 << 8);
 
     /// All bits this version defines.
-    pub const KNOWN: Self = Self((1 << 8) - 1);
+    pub const KNOWN: Self = Self((1 << 9) - 1);
 
     /// The raw bits, as on the wire.
     pub const fn bits(self) -> u32 {
@@ -99,7 +102,7 @@ impl BitOrAssign for StatusFlags {
 impl fmt::Display for StatusFlags {
     /// `TRACKING|LOOP_CLOSED`, `-` for none; unknown bits as hex so nothing is hidden.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        const NAMES: [(StatusFlags, &str); 8] = [
+        const NAMES: [(StatusFlags, &str); 9] = [
             (StatusFlags::INITIALISING, "INITIALISING"),
             (StatusFlags::TRACKING, "TRACKING"),
             (StatusFlags::DEGENERATE, "DEGENERATE"),
@@ -108,6 +111,7 @@ impl fmt::Display for StatusFlags {
             (StatusFlags::PREDICTED, "PREDICTED"),
             (StatusFlags::SENSOR_SILENT, "SENSOR_SILENT"),
             (StatusFlags::RELOCALISING, "RELOCALISING"),
+            (StatusFlags::FOREIGN_SENSOR, "FOREIGN_SENSOR"),
         ];
         let mut first = true;
         let mut sep = |f: &mut fmt::Formatter<'_>| {
@@ -445,6 +449,11 @@ mod tests {
             StatusFlags(StatusFlags::LOST.0 | 1 << 20).to_string(),
             "LOST|0x100000"
         );
+        assert_eq!(
+            (StatusFlags::TRACKING | StatusFlags::FOREIGN_SENSOR).to_string(),
+            "TRACKING|FOREIGN_SENSOR"
+        );
+        assert_eq!(StatusFlags(1 << 9).to_string(), "0x200");
     }
 
     #[test]
@@ -454,7 +463,7 @@ mod tests {
         assert!(!f.contains(StatusFlags::TRACKING | StatusFlags::LOST));
         assert!(f.intersects(StatusFlags::TRACKING | StatusFlags::LOST));
         assert_eq!(f.without(StatusFlags::DEGENERATE), StatusFlags::TRACKING);
-        assert_eq!(StatusFlags::KNOWN.bits(), 0xff);
+        assert_eq!(StatusFlags::KNOWN.bits(), 0x1ff);
     }
 
     #[test]

@@ -33,6 +33,7 @@ pub mod stream;
 pub mod trajectory;
 
 use std::fmt::Write as _;
+use std::net::Ipv4Addr;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -55,6 +56,8 @@ pub struct RunOptions<'a> {
     pub udp: Option<&'a UdpTarget>,
     /// Stop early when this becomes true (checked between packets).
     pub stop: Option<&'a AtomicBool>,
+    /// The sensor's IPv4 address in the capture (None: the factory 192.168.1.201).
+    pub source_address: Option<Ipv4Addr>,
 }
 
 /// What a run did and how fast.
@@ -157,7 +160,11 @@ pub fn run(config: &SimConfig, options: &RunOptions<'_>) -> Result<SimSummary, S
     }
     let wall = Instant::now();
     config.validate()?;
-    let mut writer = options.out_dir.map(OutputWriter::create).transpose()?;
+    let source = options.source_address.unwrap_or(output::SENSOR_ADDRESS);
+    let mut writer = options
+        .out_dir
+        .map(|dir| OutputWriter::create_from(dir, source))
+        .transpose()?;
     let mut streamer = options.udp.map(UdpStreamer::connect).transpose()?;
     let mut sim = Simulation::new(config)?;
     let setup = wall.elapsed();

@@ -41,9 +41,14 @@ pub const KIDNAPS_FILE: &str = "kidnaps.txt";
 /// Endpoints of a packet as the sensor sends it: from 192.168.1.201 to broadcast, source port
 /// equal to destination port.
 pub fn endpoints(kind: PacketKind) -> UdpEndpoints {
+    endpoints_from(SENSOR_ADDRESS, kind)
+}
+
+/// [`endpoints`] of a sensor at `source`.
+pub fn endpoints_from(source: Ipv4Addr, kind: PacketKind) -> UdpEndpoints {
     let port = kind.default_port();
     UdpEndpoints {
-        source: (SENSOR_ADDRESS, port),
+        source: (source, port),
         destination: (Ipv4Addr::BROADCAST, port),
     }
 }
@@ -52,6 +57,7 @@ pub fn endpoints(kind: PacketKind) -> UdpEndpoints {
 pub struct OutputWriter {
     dir: PathBuf,
     pcap: CaptureWriter<BufWriter<File>>,
+    source: Ipv4Addr,
 }
 
 impl std::fmt::Debug for OutputWriter {
@@ -74,14 +80,21 @@ fn io_error<'a>(
 }
 
 impl OutputWriter {
-    /// Creates the directory (and parents) and opens the capture.
+    /// Creates the directory (and parents) and opens the capture, of a sensor at its factory
+    /// address.
     pub fn create(dir: &Path) -> Result<OutputWriter, SimError> {
+        Self::create_from(dir, SENSOR_ADDRESS)
+    }
+
+    /// [`Self::create`] for a sensor at `source` (the IPv4 source of every packet).
+    pub fn create_from(dir: &Path, source: Ipv4Addr) -> Result<OutputWriter, SimError> {
         fs::create_dir_all(dir).map_err(io_error("create directory", dir))?;
         let path = dir.join(PCAP_FILE);
         let pcap = CaptureWriter::create(&path).map_err(io_error("create", &path))?;
         Ok(OutputWriter {
             dir: dir.to_path_buf(),
             pcap,
+            source,
         })
     }
 
@@ -89,7 +102,11 @@ impl OutputWriter {
     pub fn packet(&mut self, packet: &PacketRef<'_>) -> Result<(), SimError> {
         let path = self.dir.join(PCAP_FILE);
         self.pcap
-            .write_udp(packet.time_ns, endpoints(packet.kind), packet.payload)
+            .write_udp(
+                packet.time_ns,
+                endpoints_from(self.source, packet.kind),
+                packet.payload,
+            )
             .map_err(io_error("write", &path))
     }
 
@@ -127,12 +144,13 @@ impl OutputWriter {
             fs::remove_file(&kidnaps_path).map_err(io_error("remove", &kidnaps_path))?;
         }
         let path = self.dir.join(SCENE_FILE);
-        let text =
-            serde_json::to_string_pretty(&scene_json(sim, summary)).map_err(|e| SimError::Io {
-                action: "serialise",
-                path: path.clone(),
-                source: e.into(),
-            })?;
+        let mut scene = scene_json(sim, summary);
+        scene["network"]["source"] = json!(self.source.to_string());
+        let text = serde_json::to_string_pretty(&scene).map_err(|e| SimError::Io {
+            action: "serialise",
+            path: path.clone(),
+            source: e.into(),
+        })?;
         fs::write(&path, text).map_err(io_error("write", &path))
     }
 }

@@ -1,12 +1,13 @@
 //! Live UDP: the same packets, sent at real-time pace from an ephemeral local port, data to one
 //! port (2368) and position packets to another (8308), so the daemon's live path can be tested
-//! on one machine without hardware.
+//! on one machine without hardware. The local address may be chosen, so several simulated
+//! sensors on loopback (127.0.0.2, 127.0.0.3, …) send from addresses of their own.
 //!
 //! Pacing follows the packets' send times: the first packet defines the epoch, each later one
 //! waits until its offset from the first has elapsed on the monotonic clock. A run that falls
 //! behind sends at once rather than skipping packets.
 
-use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
+use std::net::{IpAddr, SocketAddr, ToSocketAddrs, UdpSocket};
 use std::time::{Duration, Instant};
 
 use crate::error::SimError;
@@ -21,6 +22,9 @@ pub struct UdpTarget {
     pub data_port: u16,
     /// Destination port of position packets.
     pub position_port: u16,
+    /// Local address to send from (None: the unspecified address of the destination's family,
+    /// the kernel's choice).
+    pub bind: Option<IpAddr>,
 }
 
 impl UdpTarget {
@@ -30,6 +34,7 @@ impl UdpTarget {
             host: host.into(),
             data_port: DATA_PORT,
             position_port: POSITION_PORT,
+            bind: None,
         }
     }
 }
@@ -57,8 +62,9 @@ impl UdpStreamer {
                 .to_socket_addrs()
                 .map_err(err)?
                 .collect();
-            // Prefer IPv4: the sensor speaks IPv4.
-            addrs.sort_by_key(|a| !a.is_ipv4());
+            // The bound address's family, else IPv4: the sensor speaks IPv4.
+            let v4 = target.bind.is_none_or(|b| b.is_ipv4());
+            addrs.sort_by_key(|a| a.is_ipv4() != v4);
             addrs.into_iter().next().ok_or_else(|| {
                 err(std::io::Error::new(
                     std::io::ErrorKind::NotFound,
@@ -68,12 +74,15 @@ impl UdpStreamer {
         };
         let data = resolve(target.data_port)?;
         let position = resolve(target.position_port)?;
-        let local: SocketAddr = if data.is_ipv4() {
-            ([0, 0, 0, 0], 0).into()
-        } else {
-            ([0u16; 8], 0).into()
+        let local: SocketAddr = match target.bind {
+            Some(ip) => (ip, 0).into(),
+            None if data.is_ipv4() => ([0, 0, 0, 0], 0).into(),
+            None => ([0u16; 8], 0).into(),
         };
-        let socket = UdpSocket::bind(local).map_err(err)?;
+        let socket = UdpSocket::bind(local).map_err(|source| SimError::Udp {
+            target: format!("{} (binding {local})", target.host),
+            source,
+        })?;
         if let SocketAddr::V4(v4) = data {
             if v4.ip().is_broadcast() || v4.ip().octets()[3] == 255 {
                 socket.set_broadcast(true).map_err(err)?;

@@ -18,6 +18,8 @@ fn packets_arrive_on_their_ports_byte_for_byte_at_real_time_pace() {
         host: "127.0.0.1".into(),
         data_port: data.local_addr().unwrap().port(),
         position_port: position.local_addr().unwrap().port(),
+        // Another address on loopback, as a second simulated sensor would use.
+        bind: Some([127, 0, 0, 2].into()),
     };
     let config = SimConfig {
         scenario: Scenario::Warehouse,
@@ -29,7 +31,8 @@ fn packets_arrive_on_their_ports_byte_for_byte_at_real_time_pace() {
         std::thread::spawn(move || {
             let mut got = Vec::new();
             let mut buf = [0u8; 2048];
-            while let Ok(n) = socket.recv(&mut buf) {
+            while let Ok((n, from)) = socket.recv_from(&mut buf) {
+                assert_eq!(from.ip(), std::net::Ipv4Addr::new(127, 0, 0, 2));
                 got.push(buf[..n].to_vec());
             }
             got

@@ -32,6 +32,7 @@ mod receive;
 mod report;
 mod sink;
 
+use std::net::Ipv4Addr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -102,6 +103,8 @@ pub enum Input {
         path: PathBuf,
         /// The ports to read.
         ports: Ports,
+        /// Read only this sender's packets (None: the first to send valid data).
+        source: Option<Ipv4Addr>,
         /// Replay speed.
         pace: Pace,
     },
@@ -109,6 +112,8 @@ pub enum Input {
     Live {
         /// Sockets.
         udp: UdpConfig,
+        /// Decode only this sender's packets (None: the first to send valid data).
+        source: Option<Ipv4Addr>,
         /// No data packet for this long: the sensor is silent.
         silence: Duration,
     },
@@ -324,11 +329,17 @@ pub fn run(mut options: Options) -> Result<Summary> {
         let stop = options.stop.clone();
         let stream = options.stream.clone();
         match options.input.clone() {
-            Input::Capture { path, ports, pace } => spawn("glint-read", move || {
+            Input::Capture {
+                path,
+                ports,
+                source,
+                pace,
+            } => spawn("glint-read", move || {
                 read_capture(
                     &path,
                     ports,
                     stream,
+                    source,
                     pace,
                     &stop,
                     &sweep_tx,
@@ -337,7 +348,11 @@ pub fn run(mut options: Options) -> Result<Summary> {
                 )
                 .map(Some)
             })?,
-            Input::Live { udp, silence } => {
+            Input::Live {
+                udp,
+                source: sensor,
+                silence,
+            } => {
                 let (datagram_tx, datagram_rx) = bounded::<Datagram>(4096);
                 let source = UdpSource::start(&udp, datagram_tx)
                     .with_context(|| format!("cannot listen for the sensor on {}", udp.bind))?;
@@ -353,6 +368,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
                         source,
                         &datagram_rx,
                         stream,
+                        sensor,
                         silence,
                         &stop,
                         &sweep_tx,

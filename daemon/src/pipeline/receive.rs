@@ -1,7 +1,9 @@
 //! The receive stage: packets from a capture (paced, waiting for the front end so a replay
 //! processes every sweep) or from the sensor's sockets (never waiting: a sweep that finds the
 //! front end's queue full is dropped whole and counted), closed into sweeps for the front end.
+//! Either way only one sensor's packets are decoded; another's are refused and counted.
 
+use std::net::{IpAddr, Ipv4Addr};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -9,11 +11,14 @@ use std::time::{Duration, Instant};
 use anyhow::Result;
 use crossbeam_channel::{Receiver, RecvTimeoutError, SendTimeoutError, Sender, TrySendError};
 use glint_driver::udp::{host_now_ns, Datagram, UdpCounters, UdpSource};
-use glint_driver::{PacketKind, Ports, SensorStream, StreamConfig, Sweep, SweepRecycler};
+use glint_driver::{
+    PacketKind, Ports, SensorStream, SourceFilter, StreamConfig, StreamError, Sweep, SweepRecycler,
+    Verdict,
+};
 
 use super::health::{Heartbeats, Stage, IDLE_BEAT};
 use super::Pace;
-use crate::capture::{replay_stream, CaptureReport};
+use crate::capture::{foreign_active, replay_stream, CaptureReport, ForeignLog};
 
 /// Counters the receive thread shares with the reporter.
 #[derive(Debug, Default)]
@@ -23,9 +28,20 @@ pub(super) struct ReceiveCounters {
     pub(super) malformed: AtomicU64,
     pub(super) sweeps_dropped: AtomicU64,
     pub(super) silent: AtomicBool,
+    /// Packets refused as another sensor's.
+    pub(super) foreign: AtomicU64,
+    /// Another sensor's packets arrived lately.
+    pub(super) foreign_active: AtomicBool,
 }
 
 impl ReceiveCounters {
+    fn update_sources(&self, filter: &SourceFilter, now_ns: u64) {
+        self.foreign
+            .store(filter.stats().foreign(), Ordering::Relaxed);
+        self.foreign_active
+            .store(foreign_active(filter, now_ns), Ordering::Relaxed);
+    }
+
     fn update(&self, stream: &SensorStream, udp: Option<&UdpCounters>) {
         let s = stream.stats();
         let (udp_dropped, wrong_length) = udp.map_or((0, 0), |u| {
@@ -58,6 +74,7 @@ pub(super) fn read_capture(
     path: &Path,
     ports: Ports,
     stream: StreamConfig,
+    source: Option<Ipv4Addr>,
     pace: Pace,
     stop: &AtomicBool,
     out: &Sender<Arrival>,
@@ -70,7 +87,8 @@ pub(super) fn read_capture(
         path,
         ports,
         stream,
-        |record_ns, stream| {
+        source,
+        |record_ns, stream, filter| {
             heartbeats.beat(Stage::Receive);
             if stop.load(Ordering::Relaxed) || downstream_gone.get() {
                 return false;
@@ -89,6 +107,7 @@ pub(super) fn read_capture(
                 }
             }
             counters.update(stream, None);
+            counters.update_sources(filter, record_ns);
             true
         },
         |sweep, stream| {
@@ -125,6 +144,7 @@ pub(super) fn receive_live(
     source: UdpSource,
     datagrams: &Receiver<Datagram>,
     stream: StreamConfig,
+    sensor: Option<Ipv4Addr>,
     silence: Duration,
     stop: &AtomicBool,
     out: &Sender<Arrival>,
@@ -133,6 +153,8 @@ pub(super) fn receive_live(
 ) -> Result<()> {
     let udp = source.counters();
     let mut stream = SensorStream::new(stream);
+    let mut filter = SourceFilter::new(sensor.map(IpAddr::V4));
+    let mut foreign_log = ForeignLog::default();
     let mut last_data = Instant::now();
     let mut silent_since: Option<Instant> = None;
     let mut logged_errors = 0u64;
@@ -145,23 +167,38 @@ pub(super) fn receive_live(
             Err(RecvTimeoutError::Disconnected) => break,
         };
         if let Some(d) = &datagram {
-            let result = match d.kind {
-                PacketKind::Data => {
-                    last_data = Instant::now();
-                    stream.push_data(d.payload(), d.receive_ns)
-                }
-                PacketKind::Position => stream.push_position(d.payload()),
-            };
-            if let Err(e) = result {
-                // Garbage on the port or a damaged packet: counted by the stream, logged
-                // sparingly (the first few, then every thousandth).
+            let verdict = filter.judge(d.kind, d.source, d.payload(), d.receive_ns);
+            // Garbage on the port or a damaged packet: counted by the stream, logged sparingly
+            // (the first few, then every thousandth).
+            let mut refused = |e: StreamError| {
                 logged_errors += 1;
                 if logged_errors <= 5 || logged_errors.is_multiple_of(1000) {
                     tracing::warn!(count = logged_errors, "packet refused: {e}");
                 }
+            };
+            while let Some(held) = filter.take_released() {
+                if let Err(e) = stream.push_position(held.payload()) {
+                    refused(e);
+                }
+            }
+            let result = match (verdict, d.kind) {
+                (Verdict::Accept, PacketKind::Data) => {
+                    last_data = Instant::now();
+                    stream.push_data(d.payload(), d.receive_ns)
+                }
+                (Verdict::Accept, PacketKind::Position) => stream.push_position(d.payload()),
+                (Verdict::Foreign, _) => {
+                    foreign_log.note(&filter, d.source, d.receive_ns);
+                    Ok(())
+                }
+                (Verdict::Held, _) => Ok(()),
+            };
+            if let Err(e) = result {
+                refused(e);
             }
             counters.update(&stream, Some(&udp));
         }
+        counters.update_sources(&filter, host_now_ns());
         match (silent_since, last_data.elapsed() > silence) {
             (None, true) => {
                 silent_since = Some(last_data);

@@ -119,6 +119,7 @@ impl ReportWindow {
         let median = quantile(&mut self.latency, 0.5);
         let p99 = quantile(&mut self.latency, 0.99);
         let dropped = counters.sweeps_dropped.load(Ordering::Relaxed);
+        let foreign = counters.foreign.load(Ordering::Relaxed);
         if let Some(b) = bus {
             let mut status = Status::new(0, glint_driver::udp::host_now_ns());
             status.sweeps_processed = sweeps;
@@ -147,6 +148,7 @@ impl ReportWindow {
                 latency_p99_ms = format_args!("{p99:.1}"),
                 dropped,
                 silent,
+                foreign,
                 "pipeline"
             );
         }

@@ -118,6 +118,9 @@ impl Sink {
         if counters.silent.load(Ordering::Relaxed) {
             flags = flags.with(StatusFlags::SENSOR_SILENT);
         }
+        if counters.foreign_active.load(Ordering::Relaxed) {
+            flags = flags.with(StatusFlags::FOREIGN_SENSOR);
+        }
         let (pose, twist) = to_base(&self.base_from_sensor, &estimate.pose, &estimate.velocity);
         if let Some((last, _)) = self.latest {
             let dt = estimate.time_ns.saturating_sub(last.time_ns);
@@ -310,6 +313,11 @@ impl Sink {
         }
         if silent {
             flags = flags.with(StatusFlags::SENSOR_SILENT);
+        }
+        // Now, not as of the latest pose: another sensor may have started or stopped since.
+        flags = flags.without(StatusFlags::FOREIGN_SENSOR);
+        if counters.foreign_active.load(Ordering::Relaxed) {
+            flags = flags.with(StatusFlags::FOREIGN_SENSOR);
         }
         self.window
             .report(bus, counters, self.sweeps, flags, silent);
