@@ -418,6 +418,7 @@ impl DaemonConfig {
             multicast_group: s.multicast_group,
             multicast_interface: s.multicast_interface,
             receive_buffer: s.receive_buffer,
+            clock: glint_driver::udp::ReceiveClock::host(),
         }
     }
 }

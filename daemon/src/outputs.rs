@@ -11,13 +11,15 @@ use glint_core::world_map::MapPoint;
 
 /// A trajectory file written pose by pose as the run goes. With a size limit it rotates: the
 /// full file becomes `<name>.1` (replacing the previous one) and a new one starts, so a run of
-/// months keeps at most twice the limit on disk.
+/// months keeps at most twice the limit on disk. It also rotates when a stamp goes back (the
+/// host clock was stepped back under the daemon), so that every file's stamps increase.
 pub struct TrajectoryWriter {
     path: PathBuf,
     out: BufWriter<File>,
     kitti: bool,
     max_bytes: Option<u64>,
     written: u64,
+    last_ns: Option<u64>,
 }
 
 impl TrajectoryWriter {
@@ -29,6 +31,7 @@ impl TrajectoryWriter {
             kitti,
             max_bytes,
             written: 0,
+            last_ns: None,
         })
     }
 
@@ -39,12 +42,14 @@ impl TrajectoryWriter {
         } else {
             format_tum_line(pose)
         };
-        if self
+        let full = self
             .max_bytes
-            .is_some_and(|max| self.written + line.len() as u64 + 1 > max)
-        {
+            .is_some_and(|max| self.written + line.len() as u64 + 1 > max);
+        let back = self.last_ns.is_some_and(|last| pose.time_ns < last);
+        if full || back {
             self.rotate()?;
         }
+        self.last_ns = Some(pose.time_ns);
         writeln!(self.out, "{line}")
             .with_context(|| format!("cannot write {}", self.path.display()))?;
         self.written += line.len() as u64 + 1;
@@ -139,6 +144,41 @@ mod tests {
             current <= 4096 && old <= 4096 && old > 3000,
             "{current} {old}"
         );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_stamp_that_goes_back_starts_a_new_file() {
+        let dir = std::env::temp_dir().join(format!("glint-back-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("t.tum");
+        let mut w = TrajectoryWriter::create(&path, false, None).unwrap();
+        // An hour in, the clock is stepped back by an hour.
+        let hour = 3_600_000_000_000u64;
+        let stamps = (0..5u64)
+            .map(|i| hour + i * 100_000_000)
+            .chain((5..9).map(|i| i * 100_000_000));
+        for time_ns in stamps {
+            w.write(&StampedPose {
+                time_ns,
+                pose: Isometry3::identity(),
+            })
+            .unwrap();
+        }
+        w.finish().unwrap();
+        let stamps_in = |p: &Path| -> Vec<f64> {
+            std::fs::read_to_string(p)
+                .unwrap()
+                .lines()
+                .map(|l| l.split(' ').next().unwrap().parse().unwrap())
+                .collect()
+        };
+        let before = stamps_in(&dir.join("t.tum.1"));
+        let after = stamps_in(&path);
+        assert_eq!((before.len(), after.len()), (5, 4));
+        for file in [&before, &after] {
+            assert!(file.windows(2).all(|w| w[0] < w[1]), "{file:?}");
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

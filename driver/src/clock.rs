@@ -59,6 +59,9 @@ pub struct ClockStats {
     pub reordered: u64,
     /// Times the receive-time offset had to be re-established.
     pub resyncs: u64,
+    /// How far the receive-time anchor stepped at the last re-establishment (the host clock
+    /// stepped, or the sensor was reset): positive forward, ns.
+    pub last_step_ns: i64,
     /// Position packets whose `$GPRMC` was read while the PPS was locked.
     pub gps_fixes: u64,
 }
@@ -77,6 +80,12 @@ impl PacketTime {
     pub fn stamp_offset_ns(&self) -> i64 {
         (i128::from(self.stamp_ns) - i128::from(self.sensor_ns)) as i64
     }
+}
+
+/// The stamp of sensor time `sensor_ns`, given `stamp − sensor` at its packet
+/// ([`PacketTime::stamp_offset_ns`]).
+pub fn stamp(sensor_ns: u64, stamp_offset_ns: i64) -> u64 {
+    (i128::from(sensor_ns) + i128::from(stamp_offset_ns)).max(0) as u64
 }
 
 /// Converts device counters to Unix ns. See the module docs.
@@ -99,8 +108,6 @@ pub struct Clock {
     /// Sensor time − unwrapped counter ns: the anchor at the first packet (or at the first
     /// after the counter restarted).
     timeline: Option<i128>,
-    /// The last step of the receive-time anchor not yet taken by [`Self::take_step`], ns.
-    step: Option<i128>,
     stats: ClockStats,
 }
 
@@ -124,17 +131,8 @@ impl Clock {
             window_start_ns: 0,
             gps_offset: None,
             timeline: None,
-            step: None,
             stats: ClockStats::default(),
         }
-    }
-
-    /// How far the receive-time anchor stepped at its last re-synchronisation (the host clock
-    /// stepped, or the sensor was reset), once: positive forward, ns.
-    pub fn take_step(&mut self) -> Option<i64> {
-        self.step
-            .take()
-            .map(|s| s.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64)
     }
 
     /// Event counts so far.
@@ -282,7 +280,8 @@ impl Clock {
             // Delays do not last a second: the clocks moved apart (host clock step, sensor
             // reset). Start over from this packet.
             self.stats.resyncs += 1;
-            self.step = Some(sample - applied);
+            self.stats.last_step_ns =
+                (sample - applied).clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64;
             self.restart_offset(sample, device_ns, receive_ns);
             return;
         }
@@ -363,7 +362,11 @@ mod tests {
                     );
                 }
                 if i == 2000 {
-                    assert_eq!(c.take_step(), Some(step_s * NS_PER_S as i64), "{step_s} s");
+                    assert_eq!(
+                        c.stats().last_step_ns,
+                        step_s * NS_PER_S as i64,
+                        "{step_s} s"
+                    );
                 }
                 if stepped {
                     // The stamp follows the new clock from the first packet after the step.
@@ -372,7 +375,6 @@ mod tests {
                 }
                 last = Some(t);
             }
-            assert_eq!(c.take_step(), None);
             assert_eq!(c.stats().resyncs, 1, "{step_s} s");
         }
     }

@@ -150,12 +150,6 @@ impl SensorStream {
         &self.clock
     }
 
-    /// The size of the last step of the receive-time anchor (a host clock step, or a sensor
-    /// reset), once, ns: see [`Clock::take_step`].
-    pub fn take_clock_step(&mut self) -> Option<i64> {
-        self.clock.take_step()
-    }
-
     /// Where to return finished sweeps' buffers (once the model is decided).
     pub fn recycler(&self) -> Option<SweepRecycler> {
         self.assembler.as_ref().map(SweepAssembler::recycler)

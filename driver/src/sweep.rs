@@ -43,7 +43,7 @@ pub struct Sweep {
 impl Sweep {
     /// The stamp of a sensor time of this sweep's (see [`Self::stamp_offset_ns`]), ns.
     pub fn stamp(&self, sensor_ns: u64) -> u64 {
-        (i128::from(sensor_ns) + i128::from(self.stamp_offset_ns)).max(0) as u64
+        crate::clock::stamp(sensor_ns, self.stamp_offset_ns)
     }
 
     /// Packets expected: received plus missing.

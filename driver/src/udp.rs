@@ -4,7 +4,7 @@
 
 use std::io;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, UdpSocket};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
@@ -32,6 +32,58 @@ pub struct UdpConfig {
     pub multicast_interface: Ipv4Addr,
     /// Requested `SO_RCVBUF`, bytes.
     pub receive_buffer: usize,
+    /// Where receive times come from.
+    pub clock: ReceiveClock,
+}
+
+/// Where receive times come from: the host clock, optionally shifted by an amount the caller
+/// may change at any time, which is how tests step the clock under a running daemon without
+/// root.
+#[derive(Clone, Default)]
+pub struct ReceiveClock {
+    shift_ns: Option<Arc<AtomicI64>>,
+}
+
+impl ReceiveClock {
+    /// The host clock.
+    pub fn host() -> Self {
+        Self::default()
+    }
+
+    /// The host clock plus `shift_ns` as it stands at each reading.
+    pub fn shifted(shift_ns: Arc<AtomicI64>) -> Self {
+        Self {
+            shift_ns: Some(shift_ns),
+        }
+    }
+
+    /// Now, ns since the epoch.
+    pub fn now_ns(&self) -> u64 {
+        let shift = self
+            .shift_ns
+            .as_ref()
+            .map_or(0, |s| s.load(Ordering::Relaxed));
+        crate::clock::stamp(host_now_ns(), shift)
+    }
+}
+
+impl std::fmt::Debug for ReceiveClock {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.shift_ns {
+            None => f.write_str("ReceiveClock::host"),
+            Some(s) => write!(f, "ReceiveClock::shifted({} ns)", s.load(Ordering::Relaxed)),
+        }
+    }
+}
+
+impl PartialEq for ReceiveClock {
+    fn eq(&self, other: &Self) -> bool {
+        match (&self.shift_ns, &other.shift_ns) {
+            (None, None) => true,
+            (Some(a), Some(b)) => Arc::ptr_eq(a, b),
+            _ => false,
+        }
+    }
 }
 
 impl Default for UdpConfig {
@@ -43,6 +95,7 @@ impl Default for UdpConfig {
             multicast_interface: Ipv4Addr::UNSPECIFIED,
             // ~1 s of single-return data.
             receive_buffer: 1 << 20,
+            clock: ReceiveClock::host(),
         }
     }
 }
@@ -144,9 +197,10 @@ impl UdpSource {
             granted_buffer = granted_buffer.min(granted);
             local[i] = socket.local_addr().map(|a| a.port()).unwrap_or(port);
             let (stop, counters, out) = (stop.clone(), counters.clone(), out.clone());
+            let clock = config.clock.clone();
             let handle = std::thread::Builder::new()
                 .name(format!("glint-rx-{port}"))
-                .spawn(move || receive_loop(socket, kind, &stop, &counters, &out))
+                .spawn(move || receive_loop(socket, kind, &clock, &stop, &counters, &out))
                 .map_err(UdpError::Thread)?;
             threads.push(handle);
         }
@@ -226,6 +280,7 @@ fn bind(config: &UdpConfig, port: u16) -> Result<(UdpSocket, usize), UdpError> {
 fn receive_loop(
     socket: UdpSocket,
     kind: PacketKind,
+    clock: &ReceiveClock,
     stop: &AtomicBool,
     counters: &UdpCounters,
     out: &Sender<Datagram>,
@@ -254,7 +309,7 @@ fn receive_loop(
                 continue;
             }
         };
-        let receive_ns = host_now_ns();
+        let receive_ns = clock.now_ns();
         match kind {
             PacketKind::Data => counters.data.fetch_add(1, Ordering::Relaxed),
             PacketKind::Position => counters.position.fetch_add(1, Ordering::Relaxed),

@@ -16,6 +16,8 @@ use super::receive::Arrival;
 /// A sweep's features on their way to the odometry.
 pub(super) struct Featured {
     pub(super) features: SweepFeatures,
+    /// What turns the sweep's sensor times into stamps (`Sweep::stamp_offset_ns`).
+    pub(super) stamp_offset_ns: i64,
     pub(super) received: Instant,
     /// Time spent in the front end, ms.
     pub(super) front_end_ms: f64,
@@ -58,6 +60,7 @@ pub(super) fn run_front_end(
     let mut process = |arrival: Arrival| -> Result<(), ()> {
         let begin = Instant::now();
         let scan = scan_of(&arrival.sweep, &mut points);
+        let stamp_offset_ns = arrival.sweep.stamp_offset_ns;
         if let Some(r) = &arrival.recycler {
             r.recycle(arrival.sweep);
         }
@@ -68,6 +71,7 @@ pub(super) fn run_front_end(
         front_end.process(&scan, &mut features);
         let message = Featured {
             features,
+            stamp_offset_ns,
             received: arrival.received,
             front_end_ms: begin.elapsed().as_secs_f64() * 1e3,
         };

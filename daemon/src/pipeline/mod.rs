@@ -248,6 +248,9 @@ pub struct Summary {
     pub map_verified: u64,
     /// Mapping: the site map written at the end, and its size (bytes).
     pub site_map_saved: Option<(PathBuf, u64)>,
+    /// Steps of the receive clock (host clock set, sensor reset) the stamps followed, and the
+    /// last one's size, ns.
+    pub clock_steps: (u64, i64),
     /// Localising with a map to save: what the run added to the saved map.
     pub site_map_extension: Option<ExtensionReport>,
 }
@@ -366,6 +369,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
                 spawn("glint-receive", move || {
                     receive_live(
                         source,
+                        &udp.clock,
                         &datagram_rx,
                         stream,
                         sensor,
@@ -551,6 +555,10 @@ pub fn run(mut options: Options) -> Result<Summary> {
     summary.map_sizes = map_sizes;
     summary.capture = capture;
     summary.sweeps_dropped = counters.sweeps_dropped.load(Ordering::Relaxed);
+    summary.clock_steps = (
+        counters.clock_steps.load(Ordering::Relaxed),
+        counters.last_clock_step_ns.load(Ordering::Relaxed),
+    );
     summary.wall = started.elapsed();
     Ok(summary)
 }

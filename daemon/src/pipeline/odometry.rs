@@ -17,7 +17,10 @@ use super::health::{recv_beating, send_beating, Heartbeats, Stage};
 
 /// A sweep's estimate on its way to the publisher.
 pub(super) struct Estimated {
+    /// On sensor time (see `glint_driver::clock`): differences are the sensor's own.
     pub(super) estimate: OdometryEstimate,
+    /// What turns the estimate's sensor time into its stamp.
+    pub(super) stamp_offset_ns: i64,
     pub(super) quality: f32,
     pub(super) received: Instant,
     pub(super) stage_ms: StageTimes,
@@ -144,6 +147,7 @@ pub(super) fn run_odometry(
         let map_fix = tracker.map_fix(&estimate);
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
         let message = Estimated {
+            stamp_offset_ns: featured.stamp_offset_ns,
             map_from_odom: tracker.correction(),
             loop_closed: tracker.correction() != previous_correction,
             map_fix,

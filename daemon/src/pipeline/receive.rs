@@ -5,12 +5,12 @@
 
 use std::net::{IpAddr, Ipv4Addr};
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
 use crossbeam_channel::{Receiver, RecvTimeoutError, SendTimeoutError, Sender, TrySendError};
-use glint_driver::udp::{host_now_ns, Datagram, UdpCounters, UdpSource};
+use glint_driver::udp::{Datagram, ReceiveClock, UdpCounters, UdpSource};
 use glint_driver::{
     PacketKind, Ports, SensorStream, SourceFilter, StreamConfig, StreamError, Sweep, SweepRecycler,
     Verdict,
@@ -32,6 +32,10 @@ pub(super) struct ReceiveCounters {
     pub(super) foreign: AtomicU64,
     /// Another sensor's packets arrived lately.
     pub(super) foreign_active: AtomicBool,
+    /// Steps of the receive-time anchor (host clock steps, sensor resets) ...
+    pub(super) clock_steps: AtomicU64,
+    /// ... and the last one's size, ns.
+    pub(super) last_clock_step_ns: AtomicI64,
 }
 
 impl ReceiveCounters {
@@ -44,6 +48,16 @@ impl ReceiveCounters {
 
     fn update(&self, stream: &SensorStream, udp: Option<&UdpCounters>) {
         let s = stream.stats();
+        if s.clock.resyncs > self.clock_steps.load(Ordering::Relaxed) {
+            // Stamps follow the new clock from this packet; motion stays on sensor time.
+            tracing::warn!(
+                step_s = s.clock.last_step_ns as f64 * 1e-9,
+                "the receive clock stepped (host clock set, or the sensor reset): stamps follow it"
+            );
+            self.clock_steps.store(s.clock.resyncs, Ordering::Relaxed);
+            self.last_clock_step_ns
+                .store(s.clock.last_step_ns, Ordering::Relaxed);
+        }
         let (udp_dropped, wrong_length) = udp.map_or((0, 0), |u| {
             (
                 u.dropped.load(Ordering::Relaxed),
@@ -142,6 +156,7 @@ pub(super) fn read_capture(
 #[allow(clippy::too_many_arguments)]
 pub(super) fn receive_live(
     source: UdpSource,
+    clock: &ReceiveClock,
     datagrams: &Receiver<Datagram>,
     stream: StreamConfig,
     sensor: Option<Ipv4Addr>,
@@ -198,7 +213,7 @@ pub(super) fn receive_live(
             }
             counters.update(&stream, Some(&udp));
         }
-        counters.update_sources(&filter, host_now_ns());
+        counters.update_sources(&filter, clock.now_ns());
         match (silent_since, last_data.elapsed() > silence) {
             (None, true) => {
                 silent_since = Some(last_data);
@@ -219,7 +234,7 @@ pub(super) fn receive_live(
             _ => {}
         }
         while let Some(sweep) = stream.take_sweep() {
-            let behind = Duration::from_nanos(host_now_ns().saturating_sub(sweep.last_receive_ns));
+            let behind = Duration::from_nanos(clock.now_ns().saturating_sub(sweep.last_receive_ns));
             let arrival = Arrival {
                 sweep,
                 recycler: stream.recycler(),

@@ -15,6 +15,7 @@ use glint_core::se3::{base_covariance, exp, to_base};
 use glint_core::tracker::RESUME_GAP_NS;
 use glint_core::trajectory::StampedPose;
 use glint_core::world_map::WorldMap;
+use glint_driver::clock::stamp;
 use glint_ipc::StatusFlags;
 use nalgebra::Isometry3;
 
@@ -49,7 +50,12 @@ pub(super) struct Sink {
     /// written at the end.
     final_trajectory: bool,
     keep_estimates: bool,
+    /// Every pose on sensor time with its stamp offset (when `keep_estimates`), for the back
+    /// end's final trajectory, whose keyframes are on sensor time.
+    sensor_estimates: Vec<(StampedPose, i64)>,
     summary: Summary,
+    /// The last estimate's sensor time.
+    last_sensor_ns: Option<u64>,
     /// The latest base pose and when its sweep was received.
     latest: Option<(PoseSample, Instant)>,
     /// Sweep period measured from consecutive poses, ns.
@@ -93,7 +99,9 @@ impl Sink {
                 && mode != SiteMapMode::Localising
                 && options.keep_estimates,
             keep_estimates: options.keep_estimates,
+            sensor_estimates: Vec::new(),
             summary: Summary::default(),
+            last_sensor_ns: None,
             latest: None,
             period_ns: 100_000_000,
             window: ReportWindow::new(),
@@ -122,12 +130,15 @@ impl Sink {
             flags = flags.with(StatusFlags::FOREIGN_SENSOR);
         }
         let (pose, twist) = to_base(&self.base_from_sensor, &estimate.pose, &estimate.velocity);
-        if let Some((last, _)) = self.latest {
-            let dt = estimate.time_ns.saturating_sub(last.time_ns);
+        if let Some(last) = self.last_sensor_ns {
+            let dt = estimate.time_ns.saturating_sub(last);
             if dt > 0 && dt < RESUME_GAP_NS {
                 self.period_ns = dt;
             }
         }
+        self.last_sensor_ns = Some(estimate.time_ns);
+        // Published and written on the stamp: the sensor time as the clock now stands.
+        let stamp_ns = stamp(estimate.time_ns, e.stamp_offset_ns);
         // The published frames are the odometry's world turned by the mounting (odom), and by
         // the back end's correction as well (map).
         let covariance = |frame_from_world: &Isometry3<f64>, base: &Isometry3<f64>| {
@@ -137,7 +148,7 @@ impl Sink {
                 .map(|a| base_covariance(&a.covariance, frame_from_world, &estimate.pose, base))
         };
         let sample = PoseSample {
-            time_ns: estimate.time_ns,
+            time_ns: stamp_ns,
             pose,
             velocity: twist,
             flags,
@@ -165,11 +176,11 @@ impl Sink {
         self.window.add_sweep(latency);
 
         let stamped = StampedPose {
-            time_ns: estimate.time_ns,
+            time_ns: stamp_ns,
             pose: estimate.pose,
         };
         let corrected = StampedPose {
-            time_ns: estimate.time_ns,
+            time_ns: stamp_ns,
             pose: self
                 .trajectory_from_world
                 .map_or(map_pose, |t| t * map_pose),
@@ -232,6 +243,12 @@ impl Sink {
         }
         if self.keep_estimates {
             s.estimates.push(stamped);
+            let on_sensor_time = StampedPose {
+                time_ns: estimate.time_ns,
+                pose: estimate.pose,
+            };
+            self.sensor_estimates
+                .push((on_sensor_time, e.stamp_offset_ns));
         }
     }
 
@@ -366,7 +383,17 @@ impl Sink {
                 }
             }
             if self.keep_estimates {
-                report.trajectory = backend.trajectory(&self.summary.estimates);
+                let (sensor, offsets): (Vec<StampedPose>, Vec<i64>) =
+                    self.sensor_estimates.iter().copied().unzip();
+                report.trajectory = backend
+                    .trajectory(&sensor)
+                    .into_iter()
+                    .zip(offsets)
+                    .map(|(p, offset)| StampedPose {
+                        time_ns: stamp(p.time_ns, offset),
+                        pose: p.pose,
+                    })
+                    .collect();
             }
             if self.final_trajectory {
                 for writer in [self.trajectory.as_mut(), self.kitti.as_mut()]
