@@ -3,7 +3,13 @@
 # real-time pace (the simulator's own process), and reports the latency from each sweep's last
 # packet to its published pose (median and p99), sweeps processed and dropped.
 #
-#   bash scripts/latency_bench.sh [SCENARIO] [SECONDS] [SEED]      # defaults: warehouse 60 3
+#   bash scripts/latency_bench.sh [SCENARIO] [SECONDS] [SEED] [stress] [pinned]
+#                                                                # defaults: warehouse 60 3
+#
+# `stress` keeps a busy loop running on the last core the whole time, as the navigation stack
+# would on the robot's computer; `pinned` pins the odometry thread to core 0 at real-time priority
+# 40 (`[pipeline] odometry_cpu`, `odometry_priority`; the priority needs CAP_SYS_NICE, which root
+# has, and is reported as refused otherwise).
 #
 # Not run by CI (it takes SECONDS of wall time). The replay equivalent:
 #   glintd replay CAPTURE --pace realtime     (prints the same latency figures)
@@ -12,6 +18,8 @@ cd "$(dirname "$0")/.."
 scenario=${1:-warehouse}
 seconds=${2:-60}
 seed=${3:-3}
+stress=${4:-}
+pinned=${5:-}
 cargo build --release -p glintd --quiet
 glintd=target/release/glintd
 work=$(mktemp -d)
@@ -28,6 +36,16 @@ position_port = $position_port
 [ipc]
 domain = "latency-bench-$$"
 TOML
+if [ "$pinned" = pinned ]; then
+    printf '[pipeline]\nodometry_cpu = 0\nodometry_priority = 40\n' >> "$work/glintd.toml"
+fi
+hog=
+if [ "$stress" = stress ]; then
+    last_core=$(( $(nproc) - 1 ))
+    taskset -c "$last_core" python3 -c 'while True: pass' &
+    hog=$!
+fi
+trap 'if [ -n "$hog" ]; then kill "$hog" 2>/dev/null || true; fi; rm -rf "$work"' EXIT
 GLINT_LOG=info NO_COLOR=1 "$glintd" run --config "$work/glintd.toml" 2> "$work/log" &
 daemon=$!
 until grep -q ready "$work/log"; do sleep 0.1; done
@@ -36,5 +54,6 @@ until grep -q ready "$work/log"; do sleep 0.1; done
 sleep 0.5
 kill -TERM "$daemon"
 wait "$daemon"
-echo "glintd run, $scenario seed $seed, $seconds s at real-time pace over UDP:"
+echo "glintd run, $scenario seed $seed, $seconds s at real-time pace over UDP${stress:+, a busy loop on the last core}${pinned:+, odometry pinned to core 0 at SCHED_FIFO 40}:"
+grep -E "pinned to a core|real-time priority" "$work/log" | sed 's/.*\(INFO\|WARN\) //' || true
 grep stopped "$work/log" | sed 's/.*INFO //'

@@ -157,6 +157,11 @@ pub struct PipelineConfig {
     /// Sweeps that may wait between stages. Live, a sweep that finds its queue full is dropped
     /// whole (counted): a late pose is worth less than the next one.
     pub queue_sweeps: usize,
+    /// Pin the odometry thread to this core (0-based), e.g. one kept free of navigation.
+    pub odometry_cpu: Option<usize>,
+    /// Run the odometry thread under `SCHED_FIFO` at this priority (1–99); needs
+    /// `CAP_SYS_NICE` (systemd's `CPUSchedulingPolicy=` instead: see `systemd/README.md`).
+    pub odometry_priority: Option<u8>,
 }
 
 impl Default for PipelineConfig {
@@ -165,6 +170,8 @@ impl Default for PipelineConfig {
             intensity: true,
             loop_closure: true,
             queue_sweeps: 2,
+            odometry_cpu: None,
+            odometry_priority: None,
         }
     }
 }
@@ -311,6 +318,12 @@ impl DaemonConfig {
                 s.receive_buffer
             );
         }
+        if let Some(p) = self.pipeline.odometry_priority {
+            anyhow::ensure!(
+                (1..=99).contains(&p),
+                "pipeline.odometry_priority = {p}: must be in 1..=99"
+            );
+        }
         if !(1..=64).contains(&self.pipeline.queue_sweeps) {
             bail!(
                 "pipeline.queue_sweeps = {}: must be in 1..=64",
@@ -406,6 +419,14 @@ impl DaemonConfig {
         })
     }
 
+    /// The odometry thread's placement.
+    pub fn odometry_thread(&self) -> crate::pipeline::ThreadPlacement {
+        crate::pipeline::ThreadPlacement {
+            cpu: self.pipeline.odometry_cpu,
+            realtime_priority: self.pipeline.odometry_priority,
+        }
+    }
+
     /// The sockets to bind.
     pub fn udp_config(&self) -> UdpConfig {
         let s = &self.sensor;
@@ -475,6 +496,10 @@ mod tests {
             ("[ipc]\ndomain = \"a/b\"\n", "ipc.domain"),
             ("[ipc]\npredicted_rate_hz = -1.0\n", "ipc.predicted_rate_hz"),
             ("[pipeline]\nqueue_sweeps = 0\n", "pipeline.queue_sweeps"),
+            (
+                "[pipeline]\nodometry_priority = 0\n",
+                "pipeline.odometry_priority",
+            ),
             (
                 "[odometry.local_map]\nradius = 0.1\n",
                 "odometry.local_map.radius",

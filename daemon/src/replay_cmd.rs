@@ -162,6 +162,7 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         stream: args.sensor.stream_config()?,
         odometry: config,
         queue: 2,
+        odometry_thread: daemon.odometry_thread(),
         base_from_sensor,
         backend: loop_closure.then(|| daemon.backend.clone()),
         odom_trajectory: args.odom_trajectory.clone(),

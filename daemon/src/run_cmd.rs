@@ -94,6 +94,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         stream,
         odometry: config.odometry.clone(),
         queue: config.pipeline.queue_sweeps,
+        odometry_thread: config.odometry_thread(),
         base_from_sensor,
         backend: config.pipeline.loop_closure.then(|| config.backend.clone()),
         odom_trajectory: config.output.odom_trajectory.clone(),

@@ -69,6 +69,7 @@ fn run_with_step(name: &str, step_ns: i64) -> (Summary, Vec<Vec<u64>>) {
             stream: StreamConfig::default(),
             odometry: Default::default(),
             queue: 4,
+            odometry_thread: Default::default(),
             base_from_sensor: Isometry3::identity(),
             publish: None,
             trajectory: Some(written),

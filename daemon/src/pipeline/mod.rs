@@ -28,6 +28,7 @@ mod backend_link;
 mod front_end;
 mod health;
 mod odometry;
+mod placement;
 mod receive;
 mod report;
 mod sink;
@@ -67,6 +68,7 @@ use receive::{read_capture, receive_live, Arrival, ReceiveCounters};
 use sink::Sink;
 
 pub use front_end::scan_of;
+pub use placement::{Placed, ThreadPlacement};
 pub use report::{quantile, Samples, Timings};
 
 /// How fast a capture is replayed.
@@ -138,6 +140,8 @@ pub struct Options {
     pub odometry: OdometryConfig,
     /// Sweeps that may wait between two stages.
     pub queue: usize,
+    /// The odometry thread's core and priority.
+    pub odometry_thread: ThreadPlacement,
     /// `base_link` ← sensor (the published poses are the base's).
     pub base_from_sensor: Isometry3<f64>,
     /// iceoryx2 publishing, if any.
@@ -486,7 +490,9 @@ pub fn run(mut options: Options) -> Result<Summary> {
             }
             _ => Tracker::new(&config, link.is_some().then_some(&backend_config.keyframes)),
         };
+        let placement = options.odometry_thread;
         spawn("glint-odometry", move || {
+            placement.apply("glint-odometry");
             Ok(run_odometry(
                 tracker,
                 known,
