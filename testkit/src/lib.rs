@@ -3,6 +3,7 @@
 //! so every test draws the same numbers on every machine without a dependency.
 
 use std::collections::HashSet;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
@@ -41,7 +42,11 @@ fn find(dir: &Path, group: &str, name: &str, ci: bool) -> Option<PathBuf> {
         );
     }
     if first_skip(group) {
-        eprintln!("skipped: {group}: {SHARED_DATA}/{name} is absent");
+        // Straight to stderr: the test harness captures `eprintln!`, and a skip must show.
+        let _ = writeln!(
+            std::io::stderr(),
+            "skipped: {group}: {SHARED_DATA}/{name} is absent"
+        );
     }
     None
 }
