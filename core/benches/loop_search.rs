@@ -14,22 +14,13 @@ use glint_core::backend::floor::{FloorMeasurement, Plane};
 use glint_core::backend::loop_closure::search;
 use glint_core::backend::pose_graph::{Edge, PoseGraph};
 use glint_core::backend::scan_context::ScanContext;
+use glint_testkit::SeededRng;
 use nalgebra::{Isometry3, Matrix6, Vector3};
-
-/// A xorshift generator from a nonzero `state`: the benches' inputs, the same on every machine.
-fn xorshift(mut state: u64) -> impl FnMut() -> u64 {
-    move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        state
-    }
-}
 
 /// A deterministic pseudo-random place: walls at varied ranges, patches of varied reflectivity.
 fn place(seed: u64, points: usize) -> Vec<(Vector3<f32>, f32)> {
-    let mut bits = xorshift(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
-    let mut next = move || (bits() >> 40) as f32 / (1u64 << 24) as f32;
+    let mut rng = SeededRng::new(seed);
+    let mut next = move || rng.uniform(0.0, 1.0) as f32;
     let walls: Vec<f32> = (0..12).map(|_| 3.0 + 30.0 * next()).collect();
     let paint: Vec<f32> = (0..24).map(|_| 100.0 * next()).collect();
     (0..points)
@@ -79,8 +70,8 @@ fn lapped_graph() -> PoseGraph {
         Isometry3::new(t, Vector3::z() * yaw)
     };
     // Measurements off by up to a centimetre and a milliradian, so the optimum is not exact.
-    let mut bits = xorshift(0x2545_F491_4F6C_DD1D);
-    let mut noise = move |scale: f64| scale * ((bits() >> 11) as f64 / (1u64 << 53) as f64 - 0.5);
+    let mut rng = SeededRng::new(0x2545_F491_4F6C_DD1D);
+    let mut noise = move |scale: f64| scale * rng.centred();
     let mut jitter = move || {
         let t = Vector3::new(noise(0.02), noise(0.02), noise(0.02));
         let r = Vector3::new(noise(0.002), noise(0.002), noise(0.002));

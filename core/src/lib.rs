@@ -26,6 +26,4 @@ pub mod solver;
 pub mod world_map;
 
 #[cfg(test)]
-mod test_random;
-#[cfg(test)]
 mod test_scenes;

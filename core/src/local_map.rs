@@ -261,8 +261,8 @@ mod tests {
 
     #[test]
     fn pruned_search_equals_brute_force() {
-        let mut centred = crate::test_random::centred(11);
-        let mut next = || (centred() + 0.5) as f32;
+        let mut rng = glint_testkit::SeededRng::new(11);
+        let mut next = || (rng.centred() + 0.5) as f32;
         let mut m = LocalMap::new(&LocalMapConfig {
             min_spacing: 0.0,
             ..config()

@@ -1,25 +1,17 @@
 //! The pose graph on a public benchmark: `parking-garage.g2o` (1,661 poses, 6,275 edges, a
 //! multi-storey garage; Carlone et al., ICRA 2015), read from `../shared/data/` beside the
-//! workspace. Absent, the test says so and passes — except under CI (`CI=true`), where the
-//! data must be there.
+//! workspace through `glint_testkit::shared_data` (skipped when absent, required under CI).
 
 use glint_core::backend::g2o;
 use glint_core::backend::pose_graph::PoseGraphConfig;
 
 #[test]
 fn parking_garage_converges_to_the_known_optimum() {
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../shared/data/parking-garage.g2o"
-    );
-    let text = match std::fs::read_to_string(path) {
-        Ok(t) => t,
-        Err(e) if std::env::var("CI").as_deref() != Ok("true") => {
-            eprintln!("skipping: {path} not readable ({e})");
-            return;
-        }
-        Err(e) => panic!("{path}: {e} (required under CI)"),
+    let Some(path) = glint_testkit::shared_data("parking-garage pose graph", "parking-garage.g2o")
+    else {
+        return;
     };
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let mut file = g2o::parse(&text).expect("the benchmark parses");
     assert_eq!(file.graph.poses.len(), 1661);
     assert_eq!(file.graph.edges.len(), 6275);

@@ -4,6 +4,8 @@
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
+use glint_testkit::shared_data;
+
 fn glintd(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_glintd"))
         .args(args)
@@ -11,21 +13,12 @@ fn glintd(args: &[&str]) -> Output {
         .expect("glintd runs")
 }
 
-fn shared_data(name: &str) -> Option<PathBuf> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
-        .join(name);
-    if path.exists() {
-        return Some(path);
-    }
-    if std::env::var("CI").is_ok_and(|v| v == "true") {
-        panic!(
-            "{} is missing: CI must run with shared/ beside the repository",
-            path.display()
-        );
-    }
-    eprintln!("skipping: {} not found", path.display());
-    None
+/// The real capture the inspections run on, when `../shared/data` is beside the workspace.
+fn real_capture() -> Option<PathBuf> {
+    shared_data(
+        "glintd info/decode on a real VLP-16 capture",
+        "vlp16_real_short.pcap",
+    )
 }
 
 fn scratch_dir(name: &str) -> PathBuf {
@@ -36,7 +29,7 @@ fn scratch_dir(name: &str) -> PathBuf {
 
 #[test]
 fn info_reports_the_model_disagreement_and_counts() {
-    let Some(capture) = shared_data("vlp16_real_short.pcap") else {
+    let Some(capture) = real_capture() else {
         return;
     };
     let out = glintd(&["info", capture.to_str().unwrap()]);
@@ -61,7 +54,7 @@ fn info_reports_the_model_disagreement_and_counts() {
 
 #[test]
 fn decode_writes_csv_with_the_documented_header() {
-    let Some(capture) = shared_data("vlp16_real_short.pcap") else {
+    let Some(capture) = real_capture() else {
         return;
     };
     let dir = scratch_dir("csv");
@@ -102,7 +95,7 @@ fn decode_writes_csv_with_the_documented_header() {
 
 #[test]
 fn decode_writes_ply_with_the_same_fields() {
-    let Some(capture) = shared_data("vlp16_real_short.pcap") else {
+    let Some(capture) = real_capture() else {
         return;
     };
     let dir = scratch_dir("ply");
@@ -178,7 +171,7 @@ fn bad_input_is_a_one_line_error_and_a_failure() {
 
 #[test]
 fn a_damaged_capture_still_yields_what_came_before() {
-    let Some(capture) = shared_data("vlp16_real_short.pcap") else {
+    let Some(capture) = real_capture() else {
         return;
     };
     let dir = scratch_dir("damaged");

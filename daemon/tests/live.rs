@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 use glint_core::metrics::{associate, ate_rmse};
 use glint_core::trajectory::{parse_tum, StampedPose};
 use glint_driver::pcap::CaptureReader;
+use glint_testkit::SeededRng;
 
 /// These tests run at real-time pace: one at a time, so they do not starve each other of CPU.
 static REAL_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
@@ -259,17 +260,9 @@ fn run_receives_a_simulated_sensor_over_udp_and_a_subscriber_gets_every_pose() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// A tiny deterministic generator for the fault injector.
-struct Lcg(u64);
-
-impl Lcg {
-    fn next(&mut self) -> u64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        self.0 >> 33
-    }
+/// The fault injector's draws: the top 31 bits of the seeded generator.
+fn draw(rng: &mut SeededRng) -> u64 {
+    rng.next_u64() >> 33
 }
 
 #[test]
@@ -289,7 +282,7 @@ fn garbage_loss_and_silence_are_counted_and_survived() {
     // it would if a cable were out).
     let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
     let mut reader = CaptureReader::open(&dir.join("scan.pcap")).unwrap();
-    let mut rng = Lcg(7);
+    let mut rng = SeededRng::new(7);
     let (mut first, start) = (None, Instant::now());
     let (mut sent, mut lost, mut garbage) = (0u64, 0u64, 0u64);
     while let Some(record) = reader.next().unwrap() {
@@ -307,15 +300,15 @@ fn garbage_loss_and_silence_are_counted_and_survived() {
         } else {
             ports.1
         };
-        if port == ports.0 && rng.next().is_multiple_of(10) {
+        if port == ports.0 && draw(&mut rng).is_multiple_of(10) {
             lost += 1;
             continue;
         }
         socket.send_to(record.payload, ("127.0.0.1", port)).unwrap();
         sent += 1;
-        if rng.next().is_multiple_of(50) {
-            let len = [3usize, 100, 554, 1206, 1500][rng.next() as usize % 5];
-            let bytes: Vec<u8> = (0..len).map(|_| rng.next() as u8).collect();
+        if draw(&mut rng).is_multiple_of(50) {
+            let len = [3usize, 100, 554, 1206, 1500][draw(&mut rng) as usize % 5];
+            let bytes: Vec<u8> = (0..len).map(|_| draw(&mut rng) as u8).collect();
             socket.send_to(&bytes, ("127.0.0.1", ports.0)).unwrap();
             garbage += 1;
         }
@@ -512,7 +505,7 @@ fn record_captures_what_the_sensor_sends() {
     let dir = scratch("record");
     let ports = free_ports();
     let out = dir.join("recorded.pcap");
-    let recorder = glintd()
+    let mut recorder = glintd()
         .args([
             "record",
             "--out",
@@ -528,7 +521,13 @@ fn record_captures_what_the_sensor_sends() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(500));
+    // The recorder says when it listens; the simulator starts after that, so the recording
+    // holds the whole stream. Its output stays open to the end: its last line must not meet a
+    // closed pipe.
+    let mut said = BufReader::new(recorder.stdout.take().unwrap());
+    let mut line = String::new();
+    said.read_line(&mut line).unwrap();
+    assert!(line.starts_with("recording ports"), "{line}");
     let sim = glintd()
         .args([
             "sim",
@@ -546,10 +545,15 @@ fn record_captures_what_the_sensor_sends() {
         ])
         .output()
         .unwrap();
-    assert!(sim.status.success());
+    let simulated = String::from_utf8_lossy(&sim.stdout);
+    assert!(sim.status.success(), "{simulated}");
     let o = recorder.wait_with_output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    // What was recorded replays: the same number of sweeps as the simulator produced.
+    drop(said);
+    // What was recorded replays: the same packets and sweeps as the simulator produced. The
+    // recording spans the whole stream, so no sweep is cut at its edges; the first and last
+    // sweeps the simulator counts are partial ones already (the stream starts and stops
+    // mid-turn), and the replay counts them as sweeps too.
     let info = glintd()
         .args([
             "info",
@@ -572,6 +576,18 @@ fn record_captures_what_the_sensor_sends() {
     assert!(
         text.contains("source: 127.0.0.1 (the first to send valid data)"),
         "the sender's address is recorded: {text}"
+    );
+    assert_eq!(
+        number_after(&text, "packets: "),
+        number_after(&simulated, "sweeps, "),
+        "data packets: {simulated}\n{text}"
+    );
+    let sweeps = number_after(&simulated, "simulated, ");
+    assert!(sweeps >= 25, "3 s at 10 Hz: {simulated}");
+    assert_eq!(
+        number_after(&text, "sweeps: "),
+        sweeps,
+        "sweeps: {simulated}\n{text}"
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -637,6 +653,20 @@ fn two_sensors_on_loopback_only_the_configured_one_is_tracked() {
     let ate = ate_rmse(&associate(&trajectory, &groundtruth)).unwrap();
     assert!(ate.rmse < 0.10, "{ate}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The whole number that follows the first `label` in a command's report.
+fn number_after(text: &str, label: &str) -> u64 {
+    let at = text
+        .find(label)
+        .unwrap_or_else(|| panic!("no {label:?} in {text}"));
+    let digits: String = text[at + label.len()..]
+        .chars()
+        .take_while(char::is_ascii_digit)
+        .collect();
+    digits
+        .parse()
+        .unwrap_or_else(|_| panic!("no number after {label:?} in {text}"))
 }
 
 #[test]

@@ -1,12 +1,11 @@
 //! Driver throughput on one core, in packets per second: parse-only (checked view of every
 //! packet) and full decode to timed points (x, y, z, time, ring, reflectivity) through sweep
-//! assembly. Uses the real 20 Hz capture when `shared/data` is present, otherwise synthetic
+//! assembly. Uses the real 20 Hz capture when `../shared/data` is present, otherwise synthetic
 //! VLP-16 packets.
 //!
 //!     cargo bench -p glint-driver --bench decode
 
 use std::hint::black_box;
-use std::path::PathBuf;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use glint_driver::sweep::SweepAssembler;
@@ -16,9 +15,11 @@ use glint_driver::{
 };
 
 fn packets() -> Vec<Vec<u8>> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data/vlp16_20hz_50_rotations.pcap");
-    if let Ok(mut source) = PcapSource::open(&path, Ports::default()) {
+    let path = glint_testkit::shared_data(
+        "the decode bench on the real 20 Hz capture",
+        "vlp16_20hz_50_rotations.pcap",
+    );
+    if let Some(mut source) = path.and_then(|p| PcapSource::open(&p, Ports::default()).ok()) {
         let mut out = Vec::new();
         while let Ok(Some(p)) = source.next() {
             if p.kind == PacketKind::Data && DataPacket::new_checked(p.payload).is_ok() {
@@ -27,7 +28,7 @@ fn packets() -> Vec<Vec<u8>> {
         }
         return out;
     }
-    eprintln!("shared/data absent: benchmarking synthetic packets");
+    eprintln!("benchmarking synthetic packets");
     (0..1000u32)
         .map(|i| {
             let mut buf = vec![0u8; DATA_PAYLOAD_LEN];

@@ -2,8 +2,6 @@
 //! through a pcap file), and no truncation or corruption of a real packet panics anywhere in the
 //! stream.
 
-mod common;
-
 use std::io::Cursor;
 use std::net::Ipv4Addr;
 
@@ -219,7 +217,10 @@ fn real_packets() -> Option<Packets> {
     static PACKETS: std::sync::OnceLock<Option<Packets>> = std::sync::OnceLock::new();
     PACKETS
         .get_or_init(|| {
-            let path = common::shared_data("vlp16_real_short.pcap")?;
+            let path = glint_testkit::shared_data(
+                "properties on real VLP-16 packets",
+                "vlp16_real_short.pcap",
+            )?;
             let mut source = PcapSource::open(&path, Ports::default()).unwrap();
             let mut out = Vec::new();
             while let Some(p) = source.next().unwrap() {

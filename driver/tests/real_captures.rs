@@ -1,15 +1,16 @@
-//! The driver against real VLP-16 captures in `shared/data`: model detection despite a wrong
+//! The driver against real VLP-16 captures in `../shared/data`: model detection despite a wrong
 //! product-id byte, packet and return counts, geometry against the manual's laser table, time
 //! order, and damaged files.
 
-mod common;
-
 use std::path::Path;
 
-use common::shared_data;
 use glint_driver::model::{ByteVerdict, ModelSource};
 use glint_driver::pcap::CaptureError;
 use glint_driver::{Model, PacketKind, PcapSource, Ports, SensorStream, StreamConfig, Sweep};
+use glint_testkit::shared_data;
+
+/// What does not run without `../shared/data`.
+const REAL_CAPTURES: &str = "real VLP-16 captures";
 
 /// The manual's VLP-16 table (63-9243), written here independently of the decoder's copy:
 /// laser index → elevation in degrees. Vertical offsets follow 41.91 mm × tan(−ω).
@@ -45,7 +46,7 @@ fn replay(path: &Path, config: StreamConfig) -> Replayed {
 
 #[test]
 fn real_short_capture_is_a_vlp16_despite_its_hdl32e_byte() {
-    let Some(path) = shared_data("vlp16_real_short.pcap") else {
+    let Some(path) = shared_data(REAL_CAPTURES, "vlp16_real_short.pcap") else {
         return;
     };
     let r = replay(&path, StreamConfig::default());
@@ -64,7 +65,7 @@ fn real_short_capture_is_a_vlp16_despite_its_hdl32e_byte() {
 
 #[test]
 fn a_configured_model_wins() {
-    let Some(path) = shared_data("vlp16_real_short.pcap") else {
+    let Some(path) = shared_data(REAL_CAPTURES, "vlp16_real_short.pcap") else {
         return;
     };
     let config = StreamConfig {
@@ -81,7 +82,7 @@ fn a_configured_model_wins() {
 
 #[test]
 fn every_point_lies_on_its_lasers_cone() {
-    let Some(path) = shared_data("vlp16_real_short.pcap") else {
+    let Some(path) = shared_data(REAL_CAPTURES, "vlp16_real_short.pcap") else {
         return;
     };
     let r = replay(&path, StreamConfig::default());
@@ -116,7 +117,7 @@ fn every_point_lies_on_its_lasers_cone() {
 
 #[test]
 fn azimuths_and_times_increase_within_each_sweep() {
-    let Some(path) = shared_data("vlp16_20hz_50_rotations.pcap") else {
+    let Some(path) = shared_data(REAL_CAPTURES, "vlp16_20hz_50_rotations.pcap") else {
         return;
     };
     let r = replay(&path, StreamConfig::default());
@@ -154,7 +155,7 @@ fn azimuths_and_times_increase_within_each_sweep() {
 
 #[test]
 fn a_truncated_copy_yields_the_packets_before_the_damage() {
-    let Some(path) = shared_data("vlp16_real_short.pcap") else {
+    let Some(path) = shared_data(REAL_CAPTURES, "vlp16_real_short.pcap") else {
         return;
     };
     let bytes = std::fs::read(&path).unwrap();
@@ -186,7 +187,7 @@ fn a_truncated_copy_yields_the_packets_before_the_damage() {
 
 #[test]
 fn proper_byte_capture_decodes_as_vlp16() {
-    let Some(path) = shared_data("vlp16_example.pcap") else {
+    let Some(path) = shared_data(REAL_CAPTURES, "vlp16_example.pcap") else {
         return;
     };
     let r = replay(&path, StreamConfig::default());

@@ -628,7 +628,8 @@ fn put_pose(out: &mut Vec<u8>, pose: &Isometry3<f64>) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_map::{assert_same, site_map, XorShift};
+    use crate::test_map::{assert_same, site_map};
+    use glint_testkit::SeededRng;
 
     /// Recomputes the trailer's CRC, so a test can reach the checks behind it.
     fn reseal(bytes: &mut [u8]) {
@@ -865,7 +866,7 @@ mod tests {
         for cut in 0..bytes.len() {
             assert!(decode(&bytes[..cut]).is_err(), "cut at {cut}");
         }
-        let mut rng = XorShift::new(12);
+        let mut rng = SeededRng::new(12);
         for round in 0..3000 {
             let mut damaged = bytes.clone();
             for _ in 0..1 + round % 4 {
@@ -882,7 +883,7 @@ mod tests {
         for round in 0..3000 {
             let mut damaged = bytes.clone();
             let at = rng.below(HEADER_LENGTH);
-            damaged[at] = rng.next_u64() as u8;
+            damaged[at] = (rng.next_u64() >> 56) as u8;
             reseal(&mut damaged);
             let _ = decode(&damaged);
             let _ = round;

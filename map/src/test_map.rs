@@ -1,4 +1,4 @@
-//! Tests' site maps: made by a xorshift from a seed, so every run and machine gets the same.
+//! Tests' site maps: drawn from a seed, so every run and machine gets the same.
 
 use glint_core::backend::config::ScanContextConfig;
 use glint_core::backend::keyframe::{CloudPoint, Keyframe};
@@ -7,55 +7,28 @@ use glint_core::backend::scan_context::ScanContext;
 use glint_core::config::IntensityMapConfig;
 use glint_core::intensity_map::IntensityMap;
 use glint_core::site_map::{SiteKeyframe, SiteMap};
+use glint_testkit::SeededRng;
 use nalgebra::{Isometry3, Matrix6, Vector3};
-
-/// Marsaglia's xorshift64.
-pub struct XorShift(u64);
-
-impl XorShift {
-    pub fn new(seed: u64) -> Self {
-        Self(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
-    }
-
-    pub fn next_u64(&mut self) -> u64 {
-        let mut x = self.0;
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        self.0 = x;
-        x
-    }
-
-    /// Uniform in [lo, hi).
-    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Uniform in 0..n.
-    pub fn below(&mut self, n: usize) -> usize {
-        (self.next_u64() % n as u64) as usize
-    }
-}
 
 /// A map of `keyframes` keyframes along a wandering path, each holding `points` points (a
 /// quarter edges, a quarter planes, half cloud) except every fourth, which has released them;
 /// intensity cells on the floor along the path; odometry edges and a loop edge every fifth keyframe.
 pub fn site_map(seed: u64, keyframes: usize, points: usize) -> SiteMap {
-    let mut rng = XorShift::new(seed);
+    let mut rng = SeededRng::new(seed);
     let sc = ScanContextConfig::default();
     let mut intensity = IntensityMap::new(&IntensityMapConfig::default());
     let mut site_keyframes = Vec::with_capacity(keyframes);
     let mut edges = Vec::new();
     for i in 0..keyframes {
-        let yaw = rng.range(-3.0, 3.0);
+        let yaw = rng.uniform(-3.0, 3.0);
         let position = Vector3::new(i as f64 * 0.8, (i as f64 * 0.1).sin() * 5.0, 0.3);
         let pose = Isometry3::new(position, Vector3::new(0.01, -0.02, yaw));
         let odom_pose = Isometry3::new(position * 1.01, Vector3::z() * (yaw + 0.01));
         let mut point = || {
             [
-                rng.range(-30.0, 30.0) as f32,
-                rng.range(-30.0, 30.0) as f32,
-                rng.range(-1.5, 4.0) as f32,
+                rng.uniform(-30.0, 30.0) as f32,
+                rng.uniform(-30.0, 30.0) as f32,
+                rng.uniform(-1.5, 4.0) as f32,
             ]
         };
         let released = i % 4 == 3;
@@ -67,7 +40,7 @@ pub fn site_map(seed: u64, keyframes: usize, points: usize) -> SiteMap {
             .into_iter()
             .map(|position| CloudPoint {
                 position,
-                eta: rng.range(0.0, 120.0) as f32,
+                eta: rng.uniform(0.0, 120.0) as f32,
             })
             .collect();
         let descriptor = ScanContext::new(cloud.iter().map(|c| (c.position.into(), c.eta)), &sc);
@@ -77,7 +50,7 @@ pub fn site_map(seed: u64, keyframes: usize, points: usize) -> SiteMap {
             for (a, b) in (0..30).flat_map(|a| (0..30).map(move |b| (a, b))) {
                 let x = position.x as f32 - 3.0 + a as f32 * 0.2 + 0.1;
                 let y = position.y as f32 - 3.0 + b as f32 * 0.2 + 0.1;
-                intensity.insert(&Vector3::new(x, y, 0.1), rng.range(0.0, 120.0) as f32);
+                intensity.insert(&Vector3::new(x, y, 0.1), rng.uniform(0.0, 120.0) as f32);
             }
         }
         if i > 0 {
@@ -108,15 +81,15 @@ pub fn site_map(seed: u64, keyframes: usize, points: usize) -> SiteMap {
     }
 }
 
-fn edge(rng: &mut XorShift, from: usize, to: usize, robust: bool) -> Edge {
+fn edge(rng: &mut SeededRng, from: usize, to: usize, robust: bool) -> Edge {
     let measurement = Isometry3::new(
-        Vector3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), 0.0),
-        Vector3::z() * rng.range(-0.5, 0.5),
+        Vector3::new(rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), 0.0),
+        Vector3::z() * rng.uniform(-0.5, 0.5),
     );
     let mut information = Matrix6::from_diagonal_element(100.0);
     for r in 0..6 {
         for c in r + 1..6 {
-            let v = rng.range(-1.0, 1.0);
+            let v = rng.uniform(-1.0, 1.0);
             information[(r, c)] = v;
             information[(c, r)] = v;
         }

@@ -262,12 +262,13 @@ impl FloorMeasurement {
 mod tests {
     use super::*;
     use crate::backend::pose_graph::edge_error;
-    use crate::test_random::centred;
+    use glint_testkit::SeededRng;
 
     /// A floor seen from `height` up, along rings of returns out to 20 m, a wall and a pallet
     /// top; then the whole scene as seen by a sensor tilted by `tilt` (sensor → level).
     fn scene(height: f64, tilt: &UnitQuaternion<f64>, seed: u64) -> Vec<Vector3<f64>> {
-        let mut noise = centred(seed);
+        let mut rng = SeededRng::new(seed);
+        let mut noise = || rng.centred();
         let mut points = Vec::new();
         for ring in 0..8 {
             let r = 3.0 + 2.3 * ring as f64;
@@ -337,7 +338,8 @@ mod tests {
         let line = (0..500).map(|k| Vector3::new(0.02 * k as f64, 1.0, -0.8));
         assert!(measure(line, None, &config).is_none());
         // A ramp's rough slope: not flat.
-        let mut noise = centred(3);
+        let mut rng = SeededRng::new(3);
+        let mut noise = || rng.centred();
         let rough: Vec<Vector3<f64>> = (0..2000)
             .map(|k| {
                 let (x, y) = ((k % 40) as f64 * 0.25, (k / 40) as f64 * 0.25 - 6.0);

@@ -178,7 +178,8 @@ mod tests {
         let n = 7;
         let mut pairs: Vec<(usize, usize)> = (0..n).map(|i| (i, (i + 1) % n)).collect();
         pairs.extend([(0, 3), (2, 5)]);
-        let mut next = crate::test_random::centred(11);
+        let mut rng = glint_testkit::SeededRng::new(11);
+        let mut next = || rng.centred();
         let mut dense = DMatrix::<f64>::zeros(6 * n, 6 * n);
         let symbolic = Symbolic::analyse(n, pairs.iter().copied());
         let mut m = symbolic.matrix();

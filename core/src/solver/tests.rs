@@ -4,6 +4,7 @@
 use super::*;
 use crate::config::{IntensityMapConfig, LocalMapConfig};
 use crate::se3::log;
+use glint_testkit::SeededRng;
 
 /// A box room (planes at x = ±6, y = ±4, z = 0 and 3) with edges along its vertical corners.
 fn room() -> (LocalMap, LocalMap, Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
@@ -55,7 +56,8 @@ fn room() -> (LocalMap, LocalMap, Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
 
 #[test]
 fn closed_form_eigen_matches_the_iterative_solver() {
-    let mut next = crate::test_random::centred(7);
+    let mut rng = SeededRng::new(7);
+    let mut next = || rng.centred();
     for _ in 0..200 {
         let m = Matrix3::from_fn(|_, _| next());
         let a = m * m.transpose();
@@ -75,7 +77,8 @@ fn closed_form_eigen_matches_the_iterative_solver() {
 
 #[test]
 fn a_planar_neighbourhood_s_normal_is_its_smallest_eigenvector() {
-    let mut next = crate::test_random::centred(11);
+    let mut rng = SeededRng::new(11);
+    let mut next = || rng.centred();
     for _ in 0..200 {
         // Five points on a tilted plane, 0.4 m across, with 1 cm of noise off it.
         let normal = Vector3::new(next(), next(), next()).normalize();
