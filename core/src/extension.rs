@@ -95,7 +95,7 @@ impl MapExtension {
     fn near_saved(&self, pose: &Isometry3<f64>) -> bool {
         let within = self.config.keyframes.redundant_within;
         self.saved.keyframes.iter().any(|k| {
-            holds_points(&k.keyframe)
+            k.keyframe.holds_points()
                 && (k.pose.translation.vector - pose.translation.vector).norm() <= within
         })
     }
@@ -112,29 +112,22 @@ impl MapExtension {
             ..ExtensionReport::default()
         };
         let placed = self.place(&mut report)?;
+        // The chosen run keyframes, in run order, each with its placed pose.
+        let mut chosen: Vec<(usize, Isometry3<f64>)> = Vec::new();
+        let within = self.config.keyframes.redundant_within;
+        for &(k, pose) in &placed {
+            let covered = self.near_saved(&pose)
+                || chosen.iter().any(|(_, p)| {
+                    (p.translation.vector - pose.translation.vector).norm() <= within
+                });
+            if self.run[k].keyframe.holds_points() && !covered {
+                chosen.push((k, pose));
+            }
+        }
         let MapExtension {
             mut saved, config, ..
         } = self;
         let saved_count = saved.keyframes.len();
-        let within = config.keyframes.redundant_within;
-
-        // The chosen run keyframes, in run order, each with its placed pose and whether the
-        // run keyframe just before it in its chain was chosen too.
-        let mut chosen: Vec<(usize, Isometry3<f64>)> = Vec::new();
-        for &(k, pose) in &placed {
-            let keyframe = &self.run[k].keyframe;
-            let redundant = |p: &Isometry3<f64>| {
-                (p.translation.vector - pose.translation.vector).norm() <= within
-            };
-            let covered = saved
-                .keyframes
-                .iter()
-                .any(|s| holds_points(&s.keyframe) && redundant(&s.pose))
-                || chosen.iter().any(|(_, p)| redundant(p));
-            if holds_points(keyframe) && !covered {
-                chosen.push((k, pose));
-            }
-        }
 
         let g = &config.graph;
         let nearest_saved = |pose: &Isometry3<f64>| {
@@ -286,10 +279,6 @@ impl MapExtension {
             .map(|(&k, pose)| (k, *pose))
             .collect())
     }
-}
-
-fn holds_points(keyframe: &Keyframe) -> bool {
-    !(keyframe.edges.is_empty() && keyframe.planes.is_empty())
 }
 
 #[cfg(test)]

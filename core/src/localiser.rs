@@ -167,7 +167,7 @@ impl Localiser {
         let held = map
             .keyframes
             .iter()
-            .map(|k| !(k.keyframe.planes.is_empty() && k.keyframe.edges.is_empty()))
+            .map(|k| k.keyframe.holds_points())
             .collect();
         let (keyframes, descriptors) = map
             .keyframes

@@ -73,6 +73,11 @@ pub struct Keyframe {
 }
 
 impl Keyframe {
+    /// Whether it holds points to register against (a redundant keyframe released them).
+    pub fn holds_points(&self) -> bool {
+        !(self.edges.is_empty() && self.planes.is_empty())
+    }
+
     /// A keyframe from the odometry's deskewed alignment input (edges and planes in the sensor
     /// frame at the reference time) and the sweep's calibrated returns in the same frame
     /// (`Odometry::map_points` at the identity pose).
