@@ -10,8 +10,8 @@ use clap::Args;
 use glint_driver::calibration::load_calibration;
 use glint_driver::pcap::{CaptureError, CaptureStats};
 use glint_driver::{
-    Admitted, Model, PacketKind, PcapSource, Ports, SensorStream, SourceFilter, StreamConfig,
-    StreamError, Sweep, SweepConfig, Verdict,
+    Admitted, Model, PacketKind, PcapSource, Ports, SensorPayload, SensorStream, SourceFilter,
+    StreamConfig, StreamError, Sweep, SweepConfig, Verdict,
 };
 
 /// Options that say how to read the sensor's packets.
@@ -117,13 +117,56 @@ pub fn replay_stream(
     ports: Ports,
     config: StreamConfig,
     source: Option<Ipv4Addr>,
+    on_packet: impl FnMut(u64, &SensorStream, &SourceFilter) -> bool,
+    on_sweep: impl FnMut(Sweep, &SensorStream) -> Result<()>,
+) -> Result<CaptureReport> {
+    let mut payloads = PcapSource::open(path, ports)
+        .with_context(|| format!("cannot replay {}", path.display()))?;
+    replay_payloads(
+        &mut payloads,
+        &path.display().to_string(),
+        config,
+        source,
+        on_packet,
+        on_sweep,
+    )
+}
+
+/// Sensor payloads in the order they were received: a capture file, or a simulated sensor
+/// run in process (`glintd soak`).
+pub trait PayloadSource {
+    /// The next payload for the sensor's ports, `Ok(None)` at the end, or the error that ends
+    /// the input early.
+    fn next_payload(&mut self) -> Result<Option<SensorPayload<'_>>, CaptureError>;
+    /// Datagrams to the data port, to the position port, and to other ports.
+    fn port_counts(&self) -> (u64, u64, u64);
+    /// Records the reader skipped.
+    fn capture_stats(&self) -> CaptureStats;
+}
+
+impl PayloadSource for PcapSource {
+    fn next_payload(&mut self) -> Result<Option<SensorPayload<'_>>, CaptureError> {
+        self.next()
+    }
+    fn port_counts(&self) -> (u64, u64, u64) {
+        PcapSource::port_counts(self)
+    }
+    fn capture_stats(&self) -> CaptureStats {
+        PcapSource::capture_stats(self)
+    }
+}
+
+/// [`replay_stream`] from any [`PayloadSource`]; `label` names the input in errors.
+pub fn replay_payloads(
+    payloads: &mut impl PayloadSource,
+    label: &str,
+    config: StreamConfig,
+    source: Option<Ipv4Addr>,
     mut on_packet: impl FnMut(u64, &SensorStream, &SourceFilter) -> bool,
     mut on_sweep: impl FnMut(Sweep, &SensorStream) -> Result<()>,
 ) -> Result<CaptureReport> {
     let mut filter = SourceFilter::new(source.map(IpAddr::V4));
     let mut foreign_log = ForeignLog::default();
-    let mut source = PcapSource::open(path, ports)
-        .with_context(|| format!("cannot replay {}", path.display()))?;
     let mut stream = SensorStream::new(config);
     let mut dropped_logged = 0u32;
     let mut handle = |stream: &mut SensorStream, result: Result<(), StreamError>| -> Result<()> {
@@ -135,7 +178,7 @@ pub fn replay_stream(
                     dropped_logged += 1;
                 }
             }
-            Err(e) => return Err(e).context(format!("cannot decode {}", path.display())),
+            Err(e) => return Err(e).context(format!("cannot decode {label}")),
         }
         while let Some(sweep) = stream.take_sweep() {
             on_sweep(sweep, stream)?;
@@ -143,7 +186,7 @@ pub fn replay_stream(
         Ok(())
     };
     let damage = loop {
-        match source.next() {
+        match payloads.next_payload() {
             Ok(Some(p)) => {
                 if !on_packet(p.receive_ns, &stream, &filter) {
                     break None;
@@ -174,8 +217,8 @@ pub fn replay_stream(
     let result = stream.finish();
     handle(&mut stream, result)?;
     Ok(CaptureReport {
-        port_counts: source.port_counts(),
-        capture: source.capture_stats(),
+        port_counts: payloads.port_counts(),
+        capture: payloads.capture_stats(),
         sources: filter,
         stream,
         damage,

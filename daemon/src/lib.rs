@@ -32,6 +32,10 @@ pub mod run_cmd;
 pub mod signals;
 #[cfg(feature = "sim")]
 pub mod sim_cmd;
+#[cfg(feature = "sim")]
+pub mod simulated;
+#[cfg(feature = "sim")]
+pub mod soak_cmd;
 
 /// Writes one line to stdout (see `say!`).
 pub fn print_line(args: std::fmt::Arguments<'_>) {

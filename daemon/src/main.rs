@@ -11,7 +11,7 @@ use glintd::{
     record_cmd, replay_cmd, run_cmd,
 };
 #[cfg(feature = "sim")]
-use glintd::{demo_cmd, sim_cmd};
+use glintd::{demo_cmd, sim_cmd, soak_cmd};
 
 /// Glint: intensity-assisted LiDAR localisation for VLP-16 AGVs.
 #[derive(Parser, Debug)]
@@ -41,6 +41,10 @@ enum Command {
     /// Simulate a VLP-16 on a robot in a scenario: pcap, ground truth and scene description.
     #[cfg(feature = "sim")]
     Sim(sim_cmd::SimArgs),
+    /// Hours of simulated sensor data through the whole pipeline without a restart, sampling
+    /// memory, per-sweep cost and latency into a CSV (see scripts/soak.sh).
+    #[cfg(feature = "sim")]
+    Soak(soak_cmd::SoakArgs),
     /// Print the poses (or status) a running glintd publishes.
     Echo(echo_cmd::EchoArgs),
     /// Send a running glintd a hint of where the robot is in the site map: X Y YAW (m, m, rad).
@@ -99,6 +103,8 @@ fn main() -> ExitCode {
         Command::Eval(args) => eval_cmd::run(args),
         #[cfg(feature = "sim")]
         Command::Sim(args) => sim_cmd::run(args),
+        #[cfg(feature = "sim")]
+        Command::Soak(args) => soak_cmd::run(args),
         Command::Posegraph(args) => posegraph_cmd::run(args),
         Command::Bench(args) => bench_cmd::run(args),
         Command::Map(args) => map_cmd::run(args),

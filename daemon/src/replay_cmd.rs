@@ -179,6 +179,7 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         stop,
         on_ready: None,
         on_alive: None,
+        on_sweep: None,
     })?;
     let departures = &summary.departures;
     let timings = &summary.timings;

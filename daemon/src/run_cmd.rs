@@ -123,6 +123,7 @@ pub fn run(args: RunArgs) -> Result<()> {
                 let _ = sd_notify::notify(false, &[NotifyState::Watchdog]);
             }) as Box<dyn FnMut()>
         }),
+        on_sweep: None,
     });
     let _ = sd_notify::notify(false, &[NotifyState::Stopping]);
     let summary = summary?;

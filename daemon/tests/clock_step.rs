@@ -86,6 +86,7 @@ fn run_with_step(name: &str, step_ns: i64) -> (Summary, Vec<Vec<u64>>) {
                 let _ = ready_tx.send(());
             })),
             on_alive: None,
+            on_sweep: None,
         })
     });
     ready_rx

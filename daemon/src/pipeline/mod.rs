@@ -53,23 +53,27 @@ use glint_core::site_map::SiteMap;
 use glint_core::tracker::{Correction, Tracker};
 use glint_core::trajectory::StampedPose;
 use glint_driver::udp::{Datagram, UdpConfig, UdpSource};
-use glint_driver::{Ports, StreamConfig};
+use glint_driver::{PcapSource, Ports, StreamConfig};
+#[cfg(feature = "sim")]
+use glint_sim::SimConfig;
 use nalgebra::{Isometry3, Vector3};
 
 use crate::capture::CaptureReport;
 use crate::publish::PoseBus;
+#[cfg(feature = "sim")]
+use crate::simulated::SimulatedSensor;
 use backend_link::{
     run_backend, run_localiser, BackEndLink, HintSource, Lockstep, MapSaver, BACK_END_QUEUE,
 };
 use front_end::{run_front_end, Featured};
 use health::Heartbeats;
 use odometry::{run_odometry, Estimated, OdometryOutcome};
-use receive::{read_capture, receive_live, Arrival, ReceiveCounters};
+use receive::{read_payloads, receive_live, Arrival, ReceiveCounters};
 use sink::Sink;
 
 pub use front_end::scan_of;
 pub use placement::{Placed, ThreadPlacement};
-pub use report::{quantile, Samples, Timings};
+pub use report::{quantile, Samples, SweepFigures, SweepWatcher, Timings};
 
 /// How fast a capture is replayed.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -109,6 +113,13 @@ pub enum Input {
         source: Option<Ipv4Addr>,
         /// Replay speed.
         pace: Pace,
+    },
+    /// A simulated sensor run in process, as fast as the stages go: a run of any length
+    /// without a capture file (`glintd soak`).
+    #[cfg(feature = "sim")]
+    Simulated {
+        /// The simulation.
+        config: SimConfig,
     },
     /// The sensor's UDP traffic.
     Live {
@@ -173,6 +184,8 @@ pub struct Options {
     pub on_ready: Option<Box<dyn FnOnce()>>,
     /// Called about once a second while every stage is alive (systemd's watchdog).
     pub on_alive: Option<Box<dyn FnMut()>>,
+    /// Called with every published sweep's figures (`glintd soak`'s sampling).
+    pub on_sweep: Option<SweepWatcher>,
 }
 
 /// The saved site map's part in a run (see `docs/localisation.md`).
@@ -342,12 +355,30 @@ pub fn run(mut options: Options) -> Result<Summary> {
                 source,
                 pace,
             } => spawn("glint-read", move || {
-                read_capture(
-                    &path,
-                    ports,
+                let mut payloads = PcapSource::open(&path, ports)
+                    .with_context(|| format!("cannot replay {}", path.display()))?;
+                read_payloads(
+                    &mut payloads,
+                    &path.display().to_string(),
                     stream,
                     source,
                     pace,
+                    &stop,
+                    &sweep_tx,
+                    &heartbeats,
+                    &counters,
+                )
+                .map(Some)
+            })?,
+            #[cfg(feature = "sim")]
+            Input::Simulated { config } => spawn("glint-read", move || {
+                let mut payloads = SimulatedSensor::new(&config)?;
+                read_payloads(
+                    &mut payloads,
+                    "the simulated sensor",
+                    stream,
+                    None,
+                    Pace::Max,
                     &stop,
                     &sweep_tx,
                     &heartbeats,
@@ -407,10 +438,11 @@ pub fn run(mut options: Options) -> Result<Summary> {
         },
         intensity: options.odometry.intensity_map.clone(),
     });
+    // Everything but the sensor's own traffic is read at the stages' pace, every sweep.
     let lockstep = match options.input {
-        Input::Capture { .. } if mode == SiteMapMode::Localising => Lockstep::Immediate,
-        Input::Capture { .. } => Lockstep::NextKeyframe,
         Input::Live { .. } => Lockstep::Off,
+        _ if mode == SiteMapMode::Localising => Lockstep::Immediate,
+        _ => Lockstep::NextKeyframe,
     };
     let backend_config = options.backend.clone().unwrap_or_default();
     let (keyframe_tx, keyframe_rx) = bounded::<(u64, Keyframe)>(BACK_END_QUEUE);
@@ -509,6 +541,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
     }
 
     let mut sink = Sink::new(&options, mode)?;
+    sink.on_sweep = options.on_sweep.take();
     let predicted_rate = options
         .publish
         .as_ref()

@@ -4,7 +4,6 @@
 //! Either way only one sensor's packets are decoded; another's are refused and counted.
 
 use std::net::{IpAddr, Ipv4Addr};
-use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
@@ -12,13 +11,13 @@ use anyhow::Result;
 use crossbeam_channel::{Receiver, RecvTimeoutError, SendTimeoutError, Sender, TrySendError};
 use glint_driver::udp::{Datagram, ReceiveClock, UdpCounters, UdpSource};
 use glint_driver::{
-    PacketKind, Ports, SensorStream, SourceFilter, StreamConfig, StreamError, Sweep, SweepRecycler,
+    PacketKind, SensorStream, SourceFilter, StreamConfig, StreamError, Sweep, SweepRecycler,
     Verdict,
 };
 
 use super::health::{Heartbeats, Stage, IDLE_BEAT};
 use super::Pace;
-use crate::capture::{foreign_active, replay_stream, CaptureReport, ForeignLog};
+use crate::capture::{foreign_active, replay_payloads, CaptureReport, ForeignLog, PayloadSource};
 
 /// Counters the receive thread shares with the reporter.
 #[derive(Debug, Default)]
@@ -81,12 +80,12 @@ pub(super) struct Arrival {
     pub(super) received: Instant,
 }
 
-/// The receive stage of a replay: reads the capture at `pace`, waiting for the front end
-/// rather than dropping.
+/// The receive stage of a replay: reads the capture (`label` in errors) at `pace`, waiting for
+/// the front end rather than dropping.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn read_capture(
-    path: &Path,
-    ports: Ports,
+pub(super) fn read_payloads(
+    payloads: &mut impl PayloadSource,
+    label: &str,
     stream: StreamConfig,
     source: Option<Ipv4Addr>,
     pace: Pace,
@@ -97,9 +96,9 @@ pub(super) fn read_capture(
 ) -> Result<CaptureReport> {
     let mut clock: Option<(u64, Instant)> = None;
     let downstream_gone = std::cell::Cell::new(false);
-    replay_stream(
-        path,
-        ports,
+    replay_payloads(
+        payloads,
+        label,
         stream,
         source,
         |record_ns, stream, filter| {

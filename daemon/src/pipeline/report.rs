@@ -10,26 +10,47 @@ use glint_ipc::{Status, StatusFlags};
 use super::receive::ReceiveCounters;
 use crate::publish::PoseBus;
 
+use glint_core::odometry::TrackingStatus;
+
 pub use glint_core::tracker::quantile;
 
-/// Per-sweep samples, bounded: past `CAPACITY` the oldest are overwritten, so a run of months
-/// keeps the last few hours.
-#[derive(Debug, Default, Clone)]
+/// Per-sweep samples, bounded: past the limit the oldest are overwritten, so a run of months
+/// keeps only the latest (a few hours by default; [`Samples::LIVE`] in a live run).
+#[derive(Debug, Clone)]
 pub struct Samples {
     values: Vec<f64>,
     next: usize,
+    limit: usize,
+}
+
+impl Default for Samples {
+    fn default() -> Self {
+        Self::bounded(Self::CAPACITY)
+    }
 }
 
 impl Samples {
     const CAPACITY: usize = 1 << 17;
+    /// A live run's window: about half an hour at 10 Hz. Its memory (11 figures a sweep) is
+    /// reached within that half hour and stays flat however long the run.
+    pub const LIVE: usize = 1 << 14;
+
+    /// Keeping the latest `limit` samples (at least one).
+    pub fn bounded(limit: usize) -> Self {
+        Self {
+            values: Vec::new(),
+            next: 0,
+            limit: limit.max(1),
+        }
+    }
 
     /// Adds one sample.
     pub fn push(&mut self, v: f64) {
-        if self.values.len() < Self::CAPACITY {
+        if self.values.len() < self.limit {
             self.values.push(v);
         } else {
             self.values[self.next] = v;
-            self.next = (self.next + 1) % Self::CAPACITY;
+            self.next = (self.next + 1) % self.limit;
         }
     }
 
@@ -75,6 +96,46 @@ pub struct Timings {
     /// Degeneracy measure.
     pub degeneracy: Samples,
 }
+
+impl Timings {
+    /// Each figure keeping its latest `limit` samples.
+    pub fn bounded(limit: usize) -> Self {
+        let s = || Samples::bounded(limit);
+        Self {
+            total: s(),
+            front_end: s(),
+            deskew: s(),
+            align: s(),
+            map: s(),
+            latency: s(),
+            edges: s(),
+            planes: s(),
+            intensity: s(),
+            iterations: s(),
+            degeneracy: s(),
+        }
+    }
+}
+
+/// One published sweep's figures, for a caller watching a long run (`Options::on_sweep`).
+#[derive(Debug, Clone, Copy)]
+pub struct SweepFigures {
+    /// The sweep's sensor time, ns.
+    pub time_ns: u64,
+    /// Front end and odometry, ms.
+    pub compute_ms: f64,
+    /// Sweep closed (its last packet received) → pose published, ms.
+    pub latency_ms: f64,
+    /// The odometry's status.
+    pub status: TrackingStatus,
+    /// The published `map` pose is verified in the map (always, unless localising).
+    pub verified: bool,
+    /// The published `odom` position of the base, m.
+    pub odom_position: [f64; 3],
+}
+
+/// What watches every published sweep's figures.
+pub type SweepWatcher = Box<dyn FnMut(&SweepFigures)>;
 
 /// The once-a-second report's window: what happened since the last report.
 pub(super) struct ReportWindow {
@@ -170,6 +231,12 @@ mod tests {
             s.push(i as f64);
         }
         assert_eq!(s.len(), Samples::CAPACITY);
+        let mut live = Samples::bounded(Samples::LIVE);
+        for i in 0..(3 * Samples::LIVE) {
+            live.push(i as f64);
+        }
+        assert_eq!(live.len(), Samples::LIVE);
+        assert_eq!(live.quantile(0.0), (2 * Samples::LIVE) as f64);
         // The ten oldest were overwritten.
         assert_eq!(s.quantile(0.0), 10.0);
     }

@@ -22,7 +22,7 @@ use nalgebra::Isometry3;
 use super::backend_link::MapSaver;
 use super::odometry::Estimated;
 use super::receive::ReceiveCounters;
-use super::report::ReportWindow;
+use super::report::{ReportWindow, Samples, SweepFigures, SweepWatcher, Timings};
 use super::{Options, Relocalisation, SiteMapMode, SlamSummary, Summary};
 use crate::outputs::{write_map, TrajectoryWriter};
 use crate::publish::{PoseBus, PoseSample};
@@ -62,6 +62,8 @@ pub(super) struct Sink {
     period_ns: u64,
     window: ReportWindow,
     sweeps: u64,
+    /// Shown every sweep's figures (`Options::on_sweep`).
+    pub(super) on_sweep: Option<SweepWatcher>,
 }
 
 impl Sink {
@@ -100,12 +102,21 @@ impl Sink {
                 && options.keep_estimates,
             keep_estimates: options.keep_estimates,
             sensor_estimates: Vec::new(),
-            summary: Summary::default(),
+            summary: Summary {
+                // A live run reports its latest half hour; a replay, every sweep it can hold.
+                timings: if options.keep_estimates {
+                    Timings::default()
+                } else {
+                    Timings::bounded(Samples::LIVE)
+                },
+                ..Summary::default()
+            },
             last_sensor_ns: None,
             latest: None,
             period_ns: 100_000_000,
             window: ReportWindow::new(),
             sweeps: 0,
+            on_sweep: None,
         })
     }
 
@@ -221,6 +232,16 @@ impl Sink {
                     *writer = None;
                 }
             }
+        }
+        if let Some(on_sweep) = self.on_sweep.as_mut() {
+            on_sweep(&SweepFigures {
+                time_ns: estimate.time_ns,
+                compute_ms: e.stage_ms.total(),
+                latency_ms: latency,
+                status: estimate.status,
+                verified: self.mode != SiteMapMode::Localising || e.map_fix.verified,
+                odom_position: pose.translation.vector.into(),
+            });
         }
         let s = &mut self.summary;
         s.statuses.count(estimate.status);
