@@ -249,6 +249,16 @@ impl RangeImage {
         }
     }
 
+    /// Return `i`'s calibrated reflectivity η, NaN where it has none: a weak return (below
+    /// `min_reflectivity`), no surface normal, or no valid position.
+    pub fn calibrated(&self, i: usize) -> f32 {
+        if self.valid.get(i) == Some(&true) && self.ring_index[i] != EMPTY {
+            self.eta[i]
+        } else {
+            f32::NAN
+        }
+    }
+
     /// The typical azimuth step between successive returns of a ring, rad (the median over
     /// every eighth pair of the sweep's; 0.2° for a VLP-16 at 600 rpm). `None` for a sweep too
     /// sparse to tell.

@@ -26,6 +26,8 @@ pub struct Feature {
     pub eta: f32,
     /// Unit surface normal at the return (sensor frame), zero if unknown.
     pub normal: [f32; 3],
+    /// The return's index in the scan's points.
+    pub point: u32,
 }
 
 /// The features of one sweep: what the front end hands the odometry.
@@ -90,6 +92,7 @@ impl SweepView<'_> {
             dt: dt as f32,
             eta: self.image.eta[i],
             normal: self.image.normal[i],
+            point: i as u32,
         }
     }
 

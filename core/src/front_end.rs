@@ -30,4 +30,10 @@ impl FrontEnd {
         self.selector
             .select(scan, &self.image, &self.config.features, out);
     }
+
+    /// Return `i` of the scan last processed: its calibrated reflectivity η, NaN where it has
+    /// none (see [`RangeImage::calibrated`]).
+    pub fn calibrated(&self, i: usize) -> f32 {
+        self.image.calibrated(i)
+    }
 }

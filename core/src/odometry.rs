@@ -565,15 +565,20 @@ impl<'a> Deskew<'a> {
     }
 
     fn apply(&self, f: &Feature) -> Vector3<f64> {
+        self.apply_at(f.position, f.dt)
+    }
+
+    /// The return at `position`, fired `dt` s from the reference time (≤ 0).
+    fn apply_at(&self, position: [f32; 3], dt: f32) -> Vector3<f64> {
         let p = Point3::new(
-            f64::from(f.position[0]),
-            f64::from(f.position[1]),
-            f64::from(f.position[2]),
+            f64::from(position[0]),
+            f64::from(position[1]),
+            f64::from(position[2]),
         );
         if self.twist == Vector6::zeros() {
             return p.coords;
         }
-        let bucket = (-f64::from(f.dt) / DESKEW_BUCKET_S).round();
+        let bucket = (-f64::from(dt) / DESKEW_BUCKET_S).round();
         let transform = if bucket >= 0.0 && (bucket as usize) < DESKEW_BUCKETS {
             let mut cache = self.cache.0.borrow_mut();
             // Held for another twist (or never filled): start over for this one.
@@ -585,9 +590,26 @@ impl<'a> Deskew<'a> {
             *cache.by_bucket[bucket as usize]
                 .get_or_insert_with(|| exp(&(self.twist * (-bucket * DESKEW_BUCKET_S))))
         } else {
-            exp(&(self.twist * f64::from(f.dt)))
+            exp(&(self.twist * f64::from(dt)))
         };
         (transform * p).coords
+    }
+}
+
+/// Moves any return of a sweep to the sweep's reference instant for a constant body twist, as
+/// the odometry moves its features (same exponential, same cache): for the points a caller
+/// publishes beside the pose.
+#[derive(Debug, Clone, Default)]
+pub struct SweepDeskew {
+    cache: DeskewCache,
+}
+
+impl SweepDeskew {
+    /// The return at `position` (sensor frame at its firing), fired `dt` s from the reference
+    /// time (≤ 0), in the sensor frame at the reference time, for the body twist `twist`
+    /// ([ω, υ], rad/s and m/s).
+    pub fn point(&self, twist: &Vector6<f64>, position: [f32; 3], dt: f32) -> Vector3<f64> {
+        Deskew::new(twist, &self.cache).apply_at(position, dt)
     }
 }
 
@@ -611,6 +633,7 @@ mod tests {
             dt: -0.05,
             eta: 0.0,
             normal: [0.0; 3],
+            point: 0,
         };
         let deskewed = Deskew::new(&twist, &DeskewCache::default()).apply(&f);
         let expected = at(0.0).inverse() * world;

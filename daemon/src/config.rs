@@ -210,6 +210,8 @@ pub struct IpcConfig {
     pub domain: String,
     /// Rate of the predicted pose stream, Hz (0 turns it off).
     pub predicted_rate_hz: f64,
+    /// Publish every sweep's returns, deskewed in `base_link`, on `glint/<domain>/sweep`.
+    pub sweeps: bool,
 }
 
 impl Default for IpcConfig {
@@ -218,6 +220,7 @@ impl Default for IpcConfig {
             publish: true,
             domain: "default".into(),
             predicted_rate_hz: 50.0,
+            sweeps: true,
         }
     }
 }

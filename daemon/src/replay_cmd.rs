@@ -169,6 +169,7 @@ pub fn run(args: ReplayArgs) -> Result<()> {
         publish: (!args.no_publish).then(|| PublishOptions {
             domain: args.domain.clone(),
             predicted_rate_hz: args.predicted_rate,
+            sweeps: true,
         }),
         trajectory: args.trajectory.clone(),
         trajectory_max_bytes: None,
@@ -342,6 +343,12 @@ pub fn run(args: ReplayArgs) -> Result<()> {
     }
     if let Some((path, bytes)) = &summary.site_map_saved {
         say!("site map written to {} ({bytes} bytes)", path.display());
+    }
+    if summary.sweeps_unpublished > 0 {
+        say!(
+            "sweep service: {} of {n} sweeps not published (its thread was busy; poses unaffected)",
+            summary.sweeps_unpublished
+        );
     }
     for e in &summary.output_errors {
         say!("output not written: {e}");

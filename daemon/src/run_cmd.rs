@@ -101,6 +101,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         publish: config.ipc.publish.then(|| PublishOptions {
             domain: config.ipc.domain.clone(),
             predicted_rate_hz: config.ipc.predicted_rate_hz,
+            sweeps: config.ipc.sweeps,
         }),
         trajectory: config.output.trajectory.clone(),
         trajectory_max_bytes: Some(config.output.trajectory_max_bytes),
@@ -131,6 +132,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     tracing::info!(
         sweeps = summary.statuses.total(),
         dropped = summary.sweeps_dropped,
+        sweeps_unpublished = summary.sweeps_unpublished,
         latency_median_ms = format_args!("{:.1}", latency.quantile(0.5)),
         latency_p99_ms = format_args!("{:.1}", latency.quantile(0.99)),
         loops_accepted = summary.slam.as_ref().map_or(0, |s| s.stats.accepted),

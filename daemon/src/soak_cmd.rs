@@ -335,6 +335,7 @@ pub fn run(args: SoakArgs) -> Result<()> {
         publish: (!args.no_publish).then(|| PublishOptions {
             domain: args.domain.clone(),
             predicted_rate_hz: 0.0,
+            sweeps: true,
         }),
         trajectory: None,
         trajectory_max_bytes: None,

@@ -14,6 +14,7 @@
 //! | [`settings`] | history, buffer, overflow and port limits of the services |
 //! | [`publisher`] | [`PosePublisher`] (the daemon's side) |
 //! | [`subscriber`] | [`PoseSubscriber`], [`StatusSubscriber`] (the consumers' side) |
+//! | [`sweep`] | the `sweep` service: [`SweepPoint`], [`SweepHeader`], [`SweepPublisher`], [`SweepSubscriber`] |
 //! | [`initial_pose`] | hints, roles reversed: [`InitialPoseSubscriber`] (the daemon's side), [`InitialPosePublisher`], [`send_initial_pose`] |
 
 pub mod initial_pose;
@@ -22,6 +23,7 @@ pub mod payload;
 pub mod publisher;
 pub mod settings;
 pub mod subscriber;
+pub mod sweep;
 
 pub use initial_pose::{
     send_initial_pose, InitialPoseCreateError, InitialPoseOpenError, InitialPosePublisher,
@@ -33,6 +35,9 @@ pub use publisher::{
     DeadNodeCleanup, PosePublisher, PublishError, PublisherError, UpdateConnectionsError,
 };
 pub use subscriber::{PoseSubscriber, ReceiveError, StatusSubscriber, SubscribeError, WaitError};
+pub use sweep::{
+    PointLabel, SweepHeader, SweepPoint, SweepPublishError, SweepPublisher, SweepSubscriber,
+};
 
 /// The iceoryx2 this crate is built on, re-exported so callers match on its error types with
 /// the very same version.

@@ -123,6 +123,9 @@ pub enum Stream {
     /// `initial_pose`: hints of where the robot is in the site map,
     /// [`InitialPose`](crate::InitialPose); consumers publish, the daemon subscribes.
     InitialPose,
+    /// `sweep`: every sweep's points in `base_link`, [`SweepPoint`](crate::SweepPoint)s under a
+    /// [`SweepHeader`](crate::SweepHeader).
+    Sweep,
 }
 
 impl Stream {
@@ -142,6 +145,7 @@ impl Stream {
             Self::Pose(PoseStream::Predicted) => "predicted",
             Self::Status => "status",
             Self::InitialPose => "initial_pose",
+            Self::Sweep => "sweep",
         }
     }
 }
@@ -170,6 +174,7 @@ mod tests {
             "glint/agv-07_a/odom"
         );
         assert_eq!(d.service_name(Stream::Status), "glint/agv-07_a/status");
+        assert_eq!(d.service_name(Stream::Sweep), "glint/agv-07_a/sweep");
         assert_eq!(
             d.service_name(Stream::InitialPose),
             "glint/agv-07_a/initial_pose"

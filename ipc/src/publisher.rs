@@ -274,7 +274,7 @@ impl<T: core::fmt::Debug + ZeroCopySend + Copy + 'static> Outlet<T> {
     }
 }
 
-fn service_name(name: &str) -> Result<ServiceName, PublisherError> {
+pub(crate) fn service_name(name: &str) -> Result<ServiceName, PublisherError> {
     ServiceName::new(name).map_err(|source| PublisherError::InvalidServiceName {
         service: name.to_owned(),
         source,

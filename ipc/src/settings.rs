@@ -71,3 +71,23 @@ pub const INITIAL_POSE_MAX_POLL_INTERVAL: Duration = Duration::from_millis(100);
 /// sending: five times [`INITIAL_POSE_MAX_POLL_INTERVAL`], so the daemon has connected and holds
 /// the hint when the sender goes.
 pub const INITIAL_POSE_SENDER_LINGER: Duration = Duration::from_millis(500);
+
+/// Points a `sweep` sample holds: the largest sweep of a supported sensor with margin (a VLP-16
+/// in dual-return mode at 300 rpm gives 115,712; at 600 rpm, 57,856). A sample is
+/// 24 B × 131,072 = 3 MiB of address space; only the points written are ever touched.
+pub const SWEEP_MAX_POINTS: usize = 1 << 17;
+
+/// `sweep` history: the last sweep, so a viewer that starts has a picture at once.
+pub const SWEEP_HISTORY_SIZE: usize = 1;
+
+/// `sweep` samples each subscriber queues: two sweeps (0.2 s at 10 Hz); a consumer that wants
+/// every sweep must keep up with the sensor.
+pub const SWEEP_SUBSCRIBER_BUFFER_SIZE: usize = 2;
+
+/// `sweep` samples a subscriber may hold at once: one (read it, then release it).
+pub const SWEEP_MAX_BORROWED_SAMPLES: usize = 1;
+
+/// `sweep` subscribers: an obstacle layer, a viewer, a recorder and one to spare. With
+/// [`SWEEP_HISTORY_SIZE`] and the publisher's one loan, this bounds the service's samples, and
+/// so its shared memory (see the README for the measured size).
+pub const SWEEP_MAX_SUBSCRIBERS: usize = 4;

@@ -139,18 +139,10 @@ impl<T: Debug + ZeroCopySend + Copy + 'static> Inlet<T> {
 
         let name = domain.service_name(stream);
         let service = node
-            .service_builder(&service_name(&name)?)
+            .service_builder(&subscriber_service_name(&name)?)
             .publish_subscribe::<T>()
             .open()
-            .map_err(|source| match source {
-                PublishSubscribeOpenError::DoesNotExist => SubscribeError::NotRunning {
-                    service: name.clone(),
-                },
-                source => SubscribeError::Service {
-                    service: name.clone(),
-                    source,
-                },
-            })?;
+            .map_err(open_error(&name))?;
         let subscriber =
             service
                 .subscriber_builder()
@@ -162,7 +154,7 @@ impl<T: Debug + ZeroCopySend + Copy + 'static> Inlet<T> {
 
         let event_name = domain.event_service_name(stream);
         let event = node
-            .service_builder(&service_name(&event_name)?)
+            .service_builder(&subscriber_service_name(&event_name)?)
             .event()
             .open()
             .map_err(|source| match source {
@@ -232,7 +224,21 @@ impl<T: Debug + ZeroCopySend + Copy + 'static> Inlet<T> {
     }
 }
 
-fn service_name(name: &str) -> Result<ServiceName, SubscribeError> {
+/// Turns iceoryx2's refusal to open service `name` into ours: a missing service means the
+/// daemon is not running.
+pub(crate) fn open_error(name: &str) -> impl Fn(PublishSubscribeOpenError) -> SubscribeError + '_ {
+    move |source| match source {
+        PublishSubscribeOpenError::DoesNotExist => SubscribeError::NotRunning {
+            service: name.to_owned(),
+        },
+        source => SubscribeError::Service {
+            service: name.to_owned(),
+            source,
+        },
+    }
+}
+
+pub(crate) fn subscriber_service_name(name: &str) -> Result<ServiceName, SubscribeError> {
     ServiceName::new(name).map_err(|source| SubscribeError::InvalidServiceName {
         service: name.to_owned(),
         source,

@@ -1,12 +1,12 @@
 //! The byte layout of the wire payloads, pinned: size, alignment and every field's offset and size
-//! of `Pose`, `Status` and `InitialPose`, checked against one table per struct — the same tables as in
+//! of `Pose`, `Status`, `InitialPose`, `SweepHeader` and `SweepPoint`, checked against one table per struct — the same tables as in
 //! `ipc/README.md`, whose rows this test also finds in the README. A failure here means the
 //! contract with C and Python consumers changed: bump the type name (`glint::PoseV2`) and the
 //! README together, never the layout alone.
 
 use core::mem::{align_of, offset_of, size_of, size_of_val};
 
-use glint_ipc::{Frame, InitialPose, Pose, Status};
+use glint_ipc::{Frame, InitialPose, Pose, Status, SweepHeader, SweepPoint};
 
 /// One README row: byte offset, size in bytes, type as the README spells it, field name.
 type Row = (usize, usize, &'static str, &'static str);
@@ -54,6 +54,30 @@ const INITIAL_POSE_LAYOUT: &[Row] = &[
     (64, 8, "f64", "position_sigma"),
     (72, 4, "u32", "frame"),
     (76, 4, "u32", "_pad0"),
+];
+
+const SWEEP_HEADER_SIZE: usize = 136;
+const SWEEP_HEADER_ALIGN: usize = 8;
+const SWEEP_HEADER_LAYOUT: &[Row] = &[
+    (0, 8, "u64", "timestamp_ns"),
+    (8, 8, "u64", "sensor_time_ns"),
+    (16, 8, "u64", "sequence"),
+    (24, 4, "u32", "point_count"),
+    (28, 4, "u32", "flags"),
+    (32, 48, "f64[6]", "sensor_twist"),
+    (80, 24, "f64[3]", "sensor_position"),
+    (104, 32, "f64[4]", "sensor_orientation"),
+];
+
+const SWEEP_POINT_SIZE: usize = 24;
+const SWEEP_POINT_ALIGN: usize = 4;
+const SWEEP_POINT_LAYOUT: &[Row] = &[
+    (0, 12, "f32[3]", "position"),
+    (12, 4, "f32", "intensity"),
+    (16, 4, "i32", "time_offset_ns"),
+    (20, 2, "u16", "ring"),
+    (22, 1, "u8", "reflectivity"),
+    (23, 1, "u8", "label"),
 ];
 
 /// `(name, offset, size)` of a public field, measured.
@@ -151,12 +175,47 @@ fn initial_pose_layout_matches_the_contract() {
 }
 
 #[test]
+fn sweep_layouts_match_the_contract() {
+    assert_eq!(size_of::<SweepHeader>(), SWEEP_HEADER_SIZE);
+    assert_eq!(align_of::<SweepHeader>(), SWEEP_HEADER_ALIGN);
+    let h = SweepHeader::default();
+    let measured = [
+        measured!(h, SweepHeader, timestamp_ns),
+        measured!(h, SweepHeader, sensor_time_ns),
+        measured!(h, SweepHeader, sequence),
+        measured!(h, SweepHeader, point_count),
+        measured!(h, SweepHeader, flags),
+        measured!(h, SweepHeader, sensor_twist),
+        measured!(h, SweepHeader, sensor_position),
+        measured!(h, SweepHeader, sensor_orientation),
+    ];
+    assert_eq!(measured.len(), SWEEP_HEADER_LAYOUT.len(), "no padding");
+    assert_matches(SWEEP_HEADER_LAYOUT, &measured, SWEEP_HEADER_SIZE);
+
+    assert_eq!(size_of::<SweepPoint>(), SWEEP_POINT_SIZE);
+    assert_eq!(align_of::<SweepPoint>(), SWEEP_POINT_ALIGN);
+    let p = SweepPoint::default();
+    let measured = [
+        measured!(p, SweepPoint, position),
+        measured!(p, SweepPoint, intensity),
+        measured!(p, SweepPoint, time_offset_ns),
+        measured!(p, SweepPoint, ring),
+        measured!(p, SweepPoint, reflectivity),
+        measured!(p, SweepPoint, label),
+    ];
+    assert_eq!(measured.len(), SWEEP_POINT_LAYOUT.len(), "no padding");
+    assert_matches(SWEEP_POINT_LAYOUT, &measured, SWEEP_POINT_SIZE);
+}
+
+#[test]
 fn readme_tables_state_the_same_layout() {
     let readme = include_str!("../README.md");
     for (offset, len, ty, name) in POSE_LAYOUT
         .iter()
         .chain(STATUS_LAYOUT)
         .chain(INITIAL_POSE_LAYOUT)
+        .chain(SWEEP_HEADER_LAYOUT)
+        .chain(SWEEP_POINT_LAYOUT)
     {
         let row = format!("| {offset} | {len} | {ty} | `{name}` |");
         assert!(readme.contains(&row), "README lacks the row {row}");
@@ -174,6 +233,14 @@ fn readme_tables_state_the_same_layout() {
             "`{}`, {INITIAL_POSE_SIZE} bytes, alignment {INITIAL_POSE_ALIGN}",
             InitialPose::TYPE_NAME
         ),
+        format!(
+            "`{}`, {SWEEP_HEADER_SIZE} bytes, alignment {SWEEP_HEADER_ALIGN}",
+            SweepHeader::TYPE_NAME
+        ),
+        format!(
+            "`{}`, {SWEEP_POINT_SIZE} bytes, alignment {SWEEP_POINT_ALIGN}",
+            SweepPoint::TYPE_NAME
+        ),
     ] {
         assert!(readme.contains(&needle), "README lacks {needle:?}");
     }
@@ -184,4 +251,6 @@ fn type_names_are_the_documented_ones() {
     assert_eq!(Pose::TYPE_NAME, "glint::PoseV1");
     assert_eq!(Status::TYPE_NAME, "glint::StatusV1");
     assert_eq!(InitialPose::TYPE_NAME, "glint::InitialPoseV1");
+    assert_eq!(SweepHeader::TYPE_NAME, "glint::SweepHeaderV1");
+    assert_eq!(SweepPoint::TYPE_NAME, "glint::SweepPointV1");
 }

@@ -12,6 +12,7 @@ use glint_driver::Sweep;
 
 use super::health::{recv_beating, send_beating, Heartbeats, Stage};
 use super::receive::Arrival;
+use super::sweeps::LabelledSweep;
 
 /// A sweep's features on their way to the odometry.
 pub(super) struct Featured {
@@ -21,6 +22,8 @@ pub(super) struct Featured {
     pub(super) received: Instant,
     /// Time spent in the front end, ms.
     pub(super) front_end_ms: f64,
+    /// Every return, labelled, when the `sweep` service is on.
+    pub(super) returns: Option<LabelledSweep>,
 }
 
 /// Converts a driver sweep to the odometry's input, its points written into `out`; `None` for
@@ -50,6 +53,7 @@ pub fn scan_of<'a>(sweep: &Sweep, out: &'a mut Vec<ScanPoint>) -> Option<Scan<'a
 /// The front end's thread: features of each sweep, until the receive stage is gone.
 pub(super) fn run_front_end(
     config: &OdometryConfig,
+    label_returns: bool,
     input: &Receiver<Arrival>,
     output: &Sender<Featured>,
     heartbeats: &Heartbeats,
@@ -69,11 +73,14 @@ pub(super) fn run_front_end(
         };
         let mut features = SweepFeatures::default();
         front_end.process(&scan, &mut features);
+        let front_end_ms = begin.elapsed().as_secs_f64() * 1e3;
+        let returns = label_returns.then(|| LabelledSweep::of(&scan, &front_end, &features));
         let message = Featured {
             features,
             stamp_offset_ns,
             received: arrival.received,
-            front_end_ms: begin.elapsed().as_secs_f64() * 1e3,
+            front_end_ms,
+            returns,
         };
         send_beating(output, message, heartbeats, Stage::FrontEnd)
     };

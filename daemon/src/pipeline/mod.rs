@@ -32,6 +32,7 @@ mod placement;
 mod receive;
 mod report;
 mod sink;
+mod sweeps;
 
 use std::net::Ipv4Addr;
 use std::path::PathBuf;
@@ -70,6 +71,7 @@ use health::Heartbeats;
 use odometry::{run_odometry, Estimated, OdometryOutcome};
 use receive::{read_payloads, receive_live, Arrival, ReceiveCounters};
 use sink::Sink;
+use sweeps::{run_sweep_publisher, PublishedSweep, SweepOutlet};
 
 pub use front_end::scan_of;
 pub use placement::{Placed, ThreadPlacement};
@@ -139,6 +141,8 @@ pub struct PublishOptions {
     pub domain: String,
     /// Predicted stream rate, Hz (0: off).
     pub predicted_rate_hz: f64,
+    /// Publish every sweep's returns on the `sweep` service too.
+    pub sweeps: bool,
 }
 
 /// Everything a run needs.
@@ -270,6 +274,8 @@ pub struct Summary {
     pub clock_steps: (u64, i64),
     /// Localising with a map to save: what the run added to the saved map.
     pub site_map_extension: Option<ExtensionReport>,
+    /// Sweeps whose returns were not published on the `sweep` service (its thread busy).
+    pub sweeps_unpublished: u64,
 }
 
 /// Sweeps counted by their tracking status.
@@ -419,11 +425,27 @@ pub fn run(mut options: Options) -> Result<Summary> {
             }
         }
     };
+    // The `sweep` service, on a thread of its own; one sweep may wait for it.
+    let sweep_service = match &options.publish {
+        Some(p) if p.sweeps => {
+            let domain = glint_ipc::Domain::new(&p.domain)
+                .map_err(|e| anyhow!("domain {:?}: {e}", p.domain))?;
+            let (tx, rx) = bounded::<PublishedSweep>(1);
+            let base_from_sensor = options.base_from_sensor;
+            let handle = spawn("glint-sweeps", move || {
+                run_sweep_publisher(&domain, base_from_sensor, &rx);
+                Ok(())
+            })?;
+            Some((SweepOutlet::new(tx), handle))
+        }
+        _ => None,
+    };
     let front_end = {
         let heartbeats = heartbeats.clone();
         let config = options.odometry.clone();
+        let label_returns = sweep_service.is_some();
         spawn("glint-features", move || {
-            run_front_end(&config, &sweep_rx, &feature_tx, &heartbeats);
+            run_front_end(&config, label_returns, &sweep_rx, &feature_tx, &heartbeats);
             Ok(())
         })?
     };
@@ -542,6 +564,10 @@ pub fn run(mut options: Options) -> Result<Summary> {
 
     let mut sink = Sink::new(&options, mode)?;
     sink.on_sweep = options.on_sweep.take();
+    let sweep_thread = sweep_service.map(|(outlet, handle)| {
+        sink.sweep_outlet = Some(outlet);
+        handle
+    });
     let predicted_rate = options
         .publish
         .as_ref()
@@ -588,6 +614,9 @@ pub fn run(mut options: Options) -> Result<Summary> {
         .transpose()?
         .flatten();
     let mut summary = sink.finish(world, backend, extension, saver.as_ref(), &options)?;
+    if let Some(handle) = sweep_thread {
+        join(handle, "sweep service")?;
+    }
     if let Some(slam) = summary.slam.as_mut() {
         slam.keyframes_dropped = keyframes_dropped;
     }

@@ -14,6 +14,7 @@ use nalgebra::{Isometry3, Vector3};
 use super::backend_link::{BackEndLink, Lockstep};
 use super::front_end::Featured;
 use super::health::{recv_beating, send_beating, Heartbeats, Stage};
+use super::sweeps::LabelledSweep;
 
 /// A sweep's estimate on its way to the publisher.
 pub(super) struct Estimated {
@@ -32,6 +33,8 @@ pub(super) struct Estimated {
     pub(super) loop_closed: bool,
     /// How far the map pose is to be trusted.
     pub(super) map_fix: MapFix,
+    /// Every return, labelled, when the `sweep` service is on.
+    pub(super) returns: Option<LabelledSweep>,
 }
 
 /// Time one sweep spent in each step, ms.
@@ -84,7 +87,8 @@ pub(super) fn run_odometry(
     heartbeats: &Heartbeats,
 ) -> OdometryOutcome {
     let mut world = map_voxel.map(WorldMap::new);
-    while let Some(featured) = recv_beating(input, heartbeats, Stage::Odometry) {
+    while let Some(mut featured) = recv_beating(input, heartbeats, Stage::Odometry) {
+        let returns = featured.returns.take();
         let features = &featured.features;
         let start = Instant::now();
         // When each step ended.
@@ -166,6 +170,7 @@ pub(super) fn run_odometry(
             },
             departure: tracked.departure,
             estimate,
+            returns,
         };
         if send_beating(output, message, heartbeats, Stage::Odometry).is_err() {
             break;

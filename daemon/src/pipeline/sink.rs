@@ -23,6 +23,7 @@ use super::backend_link::MapSaver;
 use super::odometry::Estimated;
 use super::receive::ReceiveCounters;
 use super::report::{ReportWindow, Samples, SweepFigures, SweepWatcher, Timings};
+use super::sweeps::{PublishedSweep, SweepOutlet};
 use super::{Options, Relocalisation, SiteMapMode, SlamSummary, Summary};
 use crate::outputs::{write_map, TrajectoryWriter};
 use crate::publish::{PoseBus, PoseSample};
@@ -64,6 +65,8 @@ pub(super) struct Sink {
     sweeps: u64,
     /// Shown every sweep's figures (`Options::on_sweep`).
     pub(super) on_sweep: Option<SweepWatcher>,
+    /// Where published sweeps' returns go, when the `sweep` service is on.
+    pub(super) sweep_outlet: Option<SweepOutlet>,
 }
 
 impl Sink {
@@ -117,13 +120,14 @@ impl Sink {
             window: ReportWindow::new(),
             sweeps: 0,
             on_sweep: None,
+            sweep_outlet: None,
         })
     }
 
     /// One sweep's estimate: published, written and counted.
     pub(super) fn take(
         &mut self,
-        e: Estimated,
+        mut e: Estimated,
         bus: Option<&mut PoseBus>,
         counters: &ReceiveCounters,
     ) {
@@ -182,6 +186,16 @@ impl Sink {
             }
         }
         let latency = e.received.elapsed().as_secs_f64() * 1e3;
+        // The pose is out: now the returns, on the sweep thread.
+        if let (Some(outlet), Some(sweep)) = (self.sweep_outlet.as_mut(), e.returns.take()) {
+            outlet.offer(PublishedSweep {
+                sweep,
+                twist: estimate.velocity,
+                timestamp_ns: stamp_ns,
+                sensor_time_ns: estimate.time_ns,
+                flags,
+            });
+        }
         self.latest = Some((sample, e.received));
         self.sweeps += 1;
         self.window.add_sweep(latency);
@@ -384,6 +398,7 @@ impl Sink {
         saver: Option<&MapSaver>,
         options: &Options,
     ) -> Result<Summary> {
+        self.summary.sweeps_unpublished = self.sweep_outlet.take().map_or(0, |s| s.dropped);
         let mut world = world;
         if let (Some(extension), Some(saver)) = (extension, saver) {
             match saver.save_extension(extension) {
