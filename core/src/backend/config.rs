@@ -199,6 +199,13 @@ pub struct GraphConfig {
     pub loop_sigma_rotation: f64,
     /// The optimiser (its Cauchy kernel applies to loops).
     pub optimizer: PoseGraphConfig,
+    /// While running, an optimisation moves only the newest this-many keyframes and holds the
+    /// older ones where they are, so it costs the same after hours of driving as after
+    /// minutes (a robot repeating its route adds a keyframe every metre or so, and a whole-graph
+    /// optimisation every ten keyframes grew to half a second at 12,000). A loop closed over
+    /// more keyframes than this corrects only their newest part. The last optimisation of a run
+    /// moves them all. 0: always the whole graph.
+    pub optimize_window: usize,
 }
 
 impl Default for GraphConfig {
@@ -210,6 +217,7 @@ impl Default for GraphConfig {
             loop_sigma_translation: 0.05,
             loop_sigma_rotation: 0.01,
             optimizer: PoseGraphConfig::default(),
+            optimize_window: 1000,
         }
     }
 }

@@ -374,27 +374,40 @@ impl BackEnd {
         if !due {
             return None;
         }
-        let report = self.optimize(index);
+        let window = self.config.graph.optimize_window;
+        let first_free = if window == 0 {
+            0
+        } else {
+            (index + 1).saturating_sub(window)
+        };
+        let report = self.optimize(index, first_free);
         on_stage(BackEndStage::Optimize);
         report
     }
 
-    /// Optimises the graph and moves [`Self::correction`] to keyframe `index`'s new pose.
-    fn optimize(&mut self, index: usize) -> Option<OptimizationReport> {
+    /// Optimises the graph from keyframe `first_free` on and moves [`Self::correction`] to
+    /// keyframe `index`'s new pose.
+    fn optimize(&mut self, index: usize, first_free: usize) -> Option<OptimizationReport> {
         self.floor_edges_pending = 0;
         // The graph is valid by construction (indices from our own counts, finite poses).
-        let report = self.graph.optimize(&self.config.graph.optimizer).ok();
+        let report = self
+            .graph
+            .optimize_from(&self.config.graph.optimizer, first_free)
+            .ok();
         self.correction = self.graph.poses[index] * self.keyframes[index].odom_pose.inverse();
         report
     }
 
-    /// At the end of a run: optimises the graph once more if floor edges added since the last
-    /// optimisation wait, so [`Self::trajectory`] has them all.
+    /// At the end of a run: optimises the whole graph once more if floor edges added since the
+    /// last optimisation wait or the window held older keyframes back, so
+    /// [`Self::trajectory`] has every edge's say.
     pub fn finish(&mut self) -> Option<OptimizationReport> {
-        if self.floor_edges_pending == 0 || self.keyframes.is_empty() {
+        let window = self.config.graph.optimize_window;
+        let held_back = window > 0 && self.keyframes.len() > window;
+        if (self.floor_edges_pending == 0 && !held_back) || self.keyframes.is_empty() {
             return None;
         }
-        self.optimize(self.keyframes.len() - 1)
+        self.optimize(self.keyframes.len() - 1, 0)
     }
 
     /// Whether keyframe `j` is an earlier visit of keyframe `index`'s place: it holds its points,

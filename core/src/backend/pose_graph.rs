@@ -178,9 +178,18 @@ impl PoseGraph {
     }
 
     fn cost_at(&self, poses: &[Isometry3<f64>], width: f64) -> (f64, f64) {
+        self.cost_of(self.edges.iter(), poses, width)
+    }
+
+    fn cost_of<'a>(
+        &self,
+        edges: impl Iterator<Item = &'a Edge>,
+        poses: &[Isometry3<f64>],
+        width: f64,
+    ) -> (f64, f64) {
         let mut cost = 0.0;
         let mut chi2 = 0.0;
-        for e in &self.edges {
+        for e in edges {
             let r = edge_error(e, &poses[e.from], &poses[e.to]);
             let s = (r.transpose() * e.information * r)[0];
             chi2 += s;
@@ -194,12 +203,32 @@ impl PoseGraph {
         &mut self,
         config: &PoseGraphConfig,
     ) -> Result<OptimizationReport, PoseGraphError> {
+        self.optimize_from(config, 0)
+    }
+
+    /// Optimises the poses from node `first_free` on in place, holding the older ones where
+    /// they are as if fixed: the work depends on the nodes from `first_free` and the edges that
+    /// reach them, not on the whole graph. The report's costs are the whole graph's.
+    pub fn optimize_from(
+        &mut self,
+        config: &PoseGraphConfig,
+        first_free: usize,
+    ) -> Result<OptimizationReport, PoseGraphError> {
         self.validate()?;
         let n = self.poses.len();
         let mut fixed = self.fixed.clone();
+        for f in fixed.iter_mut().take(first_free) {
+            *f = true;
+        }
         if n > 0 && !fixed.iter().any(|&f| f) {
             fixed[0] = true;
         }
+        // Edges between two held nodes only add a constant to the cost.
+        let active: Vec<&Edge> = self
+            .edges
+            .iter()
+            .filter(|e| !fixed[e.from] || !fixed[e.to])
+            .collect();
         // Free nodes are numbered 0..m for the linear system.
         let mut variable = vec![usize::MAX; n];
         let mut m = 0;
@@ -211,14 +240,14 @@ impl PoseGraph {
         }
         let symbolic = Symbolic::analyse(
             m,
-            self.edges.iter().filter_map(|e| {
+            active.iter().filter_map(|e| {
                 let (a, b) = (variable[e.from], variable[e.to]);
                 (a != usize::MAX && b != usize::MAX).then_some((a, b))
             }),
         );
         let width = config.cauchy_width;
         let (initial_cost, initial_chi2) = self.cost(width);
-        let mut cost = initial_cost;
+        let mut cost = self.cost_of(active.iter().copied(), &self.poses, width).0;
         let mut report = OptimizationReport {
             initial_cost,
             final_cost: initial_cost,
@@ -228,11 +257,11 @@ impl PoseGraph {
             accepted: 0,
             factor_blocks: symbolic.factor_blocks(),
         };
-        if m == 0 || self.edges.is_empty() {
+        if m == 0 || active.is_empty() {
             return Ok(report);
         }
         let mut lambda = config.initial_lambda;
-        let mut system = self.linearise(&symbolic, &variable, m, width);
+        let mut system = self.linearise(&active, &symbolic, &variable, m, width);
         while report.iterations < config.max_iterations {
             report.iterations += 1;
             let (matrix, gradient, diagonal) = &system;
@@ -263,7 +292,7 @@ impl PoseGraph {
                     k => exp(&step[k]) * p,
                 })
                 .collect();
-            let (trial, _) = self.cost_at(&candidate, width);
+            let (trial, _) = self.cost_of(active.iter().copied(), &candidate, width);
             if trial.is_finite() && trial < cost {
                 let decrease = (cost - trial) / cost.max(1e-300);
                 self.poses = candidate;
@@ -273,7 +302,7 @@ impl PoseGraph {
                 if decrease < config.relative_tolerance {
                     break;
                 }
-                system = self.linearise(&symbolic, &variable, m, width);
+                system = self.linearise(&active, &symbolic, &variable, m, width);
             } else {
                 lambda *= 4.0;
                 if lambda > 1e12 {
@@ -291,6 +320,7 @@ impl PoseGraph {
     /// free node.
     fn linearise(
         &self,
+        edges: &[&Edge],
         symbolic: &Symbolic,
         variable: &[usize],
         m: usize,
@@ -304,7 +334,7 @@ impl PoseGraph {
         let mut gradient = vec![Vector6::zeros(); m];
         let mut diagonal = vec![Vector6::zeros(); m];
         const H: f64 = 1e-6;
-        for e in &self.edges {
+        for e in edges {
             let (a, b) = (&self.poses[e.from], &self.poses[e.to]);
             let r = edge_error(e, a, b);
             let s = (r.transpose() * e.information * r)[0];
@@ -412,6 +442,29 @@ mod tests {
         for (p, t) in graph.poses.iter().zip(&truth) {
             assert!(log(&(p.inverse() * t)).norm() < 1e-6);
         }
+    }
+
+    #[test]
+    fn a_window_holds_the_older_nodes_and_still_closes_the_loop() {
+        let (mut graph, truth) = square(2);
+        let last = truth.len() - 1;
+        graph.edges.push(Edge {
+            robust: true,
+            ..edge(&graph, 4, last, &truth)
+        });
+        let held: Vec<_> = graph.poses[..8].to_vec();
+        let before = (graph.poses[last].translation.vector - truth[last].translation.vector).norm();
+        let whole = graph.clone().optimize(&PoseGraphConfig::default()).expect("valid");
+        let report = graph
+            .optimize_from(&PoseGraphConfig::default(), 8)
+            .expect("valid");
+        assert_eq!(&graph.poses[..8], &held[..], "held nodes moved");
+        let after = (graph.poses[last].translation.vector - truth[last].translation.vector).norm();
+        assert!(after < 0.5 * before, "{before} → {after}");
+        assert!(report.final_cost < report.initial_cost, "{report:?}");
+        // Fewer nodes free: a smaller factor, a cost no lower than the whole graph's optimum.
+        assert!(report.factor_blocks < whole.factor_blocks, "{report:?} vs {whole:?}");
+        assert!(report.final_cost >= whole.final_cost * (1.0 - 1e-9));
     }
 
     #[test]
