@@ -66,6 +66,10 @@ pub struct SiteMapConfig {
     /// Localisation: where `base_link` is believed to be at start, `[x, y, yaw]` in the map
     /// (m, m, rad); none to search the whole map.
     pub initial_pose: Option<[f64; 3]>,
+    /// Localisation: at shutdown, write the saved map extended by the places this run drove
+    /// through beyond it here (`path` itself makes the next start localise in the extended
+    /// map); none: the map is only read.
+    pub extend_to: Option<PathBuf>,
 }
 
 impl Default for SiteMapConfig {
@@ -75,6 +79,7 @@ impl Default for SiteMapConfig {
             path: None,
             autosave_s: 60.0,
             initial_pose: None,
+            extend_to: None,
         }
     }
 }
@@ -381,6 +386,12 @@ impl DaemonConfig {
         if let Some(p) = site.initial_pose {
             initial_pose(&p, &Isometry3::identity()).context("site_map.initial_pose")?;
         }
+        if site.extend_to.is_some() && site.mode != SiteMapMode::Localisation {
+            bail!(
+                "site_map.extend_to: extending a map needs mode = \"localisation\" (mode is {:?})",
+                site.mode
+            );
+        }
         if site.mode == SiteMapMode::Mapping && !self.pipeline.loop_closure {
             bail!("site_map.mode = \"mapping\" needs pipeline.loop_closure = true");
         }
@@ -511,6 +522,10 @@ mod tests {
             (
                 "[backend.floor]\nsigma_tilt = 0.0\n",
                 "backend.floor.sigma_tilt",
+            ),
+            (
+                "[site_map]\nmode = \"mapping\"\npath = \"a\"\nextend_to = \"b\"\n",
+                "site_map.extend_to",
             ),
         ] {
             let e = format!("{:#}", DaemonConfig::parse(text).unwrap_err());

@@ -63,6 +63,7 @@ pub fn run(args: RunArgs) -> Result<()> {
                 "localising in the saved site map"
             );
             site_map.localise = Some(map);
+            site_map.save = site.extend_to.clone();
             site_map.hint = site
                 .initial_pose
                 .map(|p| crate::config::initial_pose(&p, &base_from_sensor))

@@ -701,3 +701,96 @@ fn a_full_disk_stops_the_file_not_the_poses() {
     assert!(seq.windows(2).all(|w| w[1] == w[0] + 1));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Streams `seconds` of the simulated warehouse `seed` to `ports` at real-time pace, its ground
+/// truth written into `out`.
+fn stream_warehouse(ports: (u16, u16), seed: &str, seconds: &str, out: &Path) {
+    let o = glintd()
+        .args(["sim", "warehouse", "--seconds", seconds, "--seed", seed])
+        .args(["--udp", "127.0.0.1"])
+        .args(["--data-port", &ports.0.to_string()])
+        .args(["--position-port", &ports.1.to_string()])
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// The keyframe count `glintd map info` reports.
+fn map_keyframes(map: &Path) -> u64 {
+    let o = glintd().args(["map", "info"]).arg(map).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    number_after(&String::from_utf8_lossy(&o.stdout), "keyframes: ")
+}
+
+#[test]
+fn a_site_mapped_live_is_localised_in_and_extended_live() {
+    let _serial = real_time();
+    let dir = scratch("site-map");
+    let site = dir.join("site.glintmap");
+    let extended = dir.join("extended.glintmap");
+
+    // Mapping: the map is written at shutdown.
+    let ports = free_ports();
+    let d = domain("site-mapping");
+    let config = write_config(&dir, ports, &d);
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(
+        &config,
+        format!(
+            "{text}[site_map]\nmode = \"mapping\"\npath = \"{}\"\nautosave_s = 0\n",
+            site.display()
+        ),
+    )
+    .unwrap();
+    let (mut daemon, _log) = start_daemon(&config);
+    stream_warehouse(ports, "33", "12", &dir.join("mapping"));
+    std::thread::sleep(Duration::from_millis(500));
+    let (exit, _) = terminate(&mut daemon);
+    assert!(exit.success(), "glintd run exited with {exit}");
+    let mapped = map_keyframes(&site);
+    assert!(mapped >= 5, "{mapped} keyframes");
+
+    // Localising along the same route and on past the mapped part: verified `map` poses, and
+    // at shutdown the map extended by the new part.
+    let ports = free_ports();
+    let d = domain("site-localising");
+    let local = dir.join("localising");
+    std::fs::create_dir_all(&local).unwrap();
+    let config = write_config(&local, ports, &d);
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(
+        &config,
+        format!(
+            "{text}[site_map]\nmode = \"localisation\"\npath = \"{}\"\nextend_to = \"{}\"\n",
+            site.display(),
+            extended.display()
+        ),
+    )
+    .unwrap();
+    let (mut daemon, _log) = start_daemon(&config);
+    let map_poses = spawn_echo(&d, "map", 30.0);
+    stream_warehouse(ports, "33", "24", &local.join("sim"));
+    std::thread::sleep(Duration::from_millis(500));
+    let (exit, _) = terminate(&mut daemon);
+    assert!(exit.success(), "glintd run exited with {exit}");
+    let lines = echoed_lines(map_poses);
+    let tracked = lines.iter().filter(|l| l.contains("TRACKING")).count();
+    assert!(
+        tracked >= 100,
+        "{tracked} of {} map poses tracked",
+        lines.len()
+    );
+    assert!(
+        lines
+            .iter()
+            .all(|l| !(l.contains("TRACKING") && l.contains("RELOCALISING"))),
+        "a map pose both tracked and relocalising"
+    );
+    let grown = map_keyframes(&extended);
+    assert!(grown > mapped, "{mapped} keyframes extended to {grown}");
+    // The saved map itself is only read.
+    assert_eq!(map_keyframes(&site), mapped);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
