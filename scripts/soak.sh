@@ -3,12 +3,12 @@
 # localisation mode, at the stages' own pace. `glintd soak` runs a simulated VLP-16 in process
 # (no capture file) and samples resident memory, per-sweep CPU time, per-sweep compute and
 # latency once a minute into a CSV; this script makes the site map the localisation soak runs
-# in, runs both soaks one after the other, and plots them (docs/soak.png) with a summary.
+# in, runs both soaks one after the other, and writes docs/soak.md with its plot docs/soak.png.
 #
 #   bash scripts/soak.sh [SWEEPS] [OUT_DIR]        # defaults: 200000 target/soak
 #   SOAK_SCENARIO=yard SOAK_SEED=4 bash scripts/soak.sh 20000
 #
-# 200,000 sweeps are 5.6 h of sensor time; on a 2-core machine each soak takes about 45 min.
+# 200,000 sweeps are 5.6 h of sensor time; on 2 cores each soak takes about an hour.
 # The plot needs matplotlib: it is installed into a virtual environment under OUT_DIR if the
 # system's Python lacks it. Not run by CI.
 set -euo pipefail
@@ -19,6 +19,7 @@ scenario=${SOAK_SCENARIO:-warehouse}
 seed=${SOAK_SEED:-1}
 every=${SOAK_EVERY:-60}
 plot=${SOAK_PLOT:-docs/soak.png}
+report=${SOAK_REPORT:-docs/soak.md}
 cargo build --release -p glintd --quiet
 mkdir -p "$out"
 # Its own copy: a rebuild while the soak runs must not change the second run's binary.
@@ -54,4 +55,4 @@ if ! "$python" -c 'import matplotlib' 2> /dev/null; then
 fi
 "$python" scripts/soak_plot.py --slam "$out/slam.csv" --localisation "$out/localisation.csv" \
     --slam-log "$out/slam.log" --localisation-log "$out/localisation.log" \
-    --plot "$plot" | tee "$out/summary.md"
+    --plot "$plot" --report "$report" --command "bash scripts/soak.sh $sweeps"

@@ -454,7 +454,10 @@ mod tests {
         });
         let held: Vec<_> = graph.poses[..8].to_vec();
         let before = (graph.poses[last].translation.vector - truth[last].translation.vector).norm();
-        let whole = graph.clone().optimize(&PoseGraphConfig::default()).expect("valid");
+        let whole = graph
+            .clone()
+            .optimize(&PoseGraphConfig::default())
+            .expect("valid");
         let report = graph
             .optimize_from(&PoseGraphConfig::default(), 8)
             .expect("valid");
@@ -463,7 +466,10 @@ mod tests {
         assert!(after < 0.5 * before, "{before} → {after}");
         assert!(report.final_cost < report.initial_cost, "{report:?}");
         // Fewer nodes free: a smaller factor, a cost no lower than the whole graph's optimum.
-        assert!(report.factor_blocks < whole.factor_blocks, "{report:?} vs {whole:?}");
+        assert!(
+            report.factor_blocks < whole.factor_blocks,
+            "{report:?} vs {whole:?}"
+        );
         assert!(report.final_cost >= whole.final_cost * (1.0 - 1e-9));
     }
 

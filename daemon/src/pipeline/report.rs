@@ -5,12 +5,11 @@
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
+use glint_core::odometry::TrackingStatus;
 use glint_ipc::{Status, StatusFlags};
 
 use super::receive::ReceiveCounters;
 use crate::publish::PoseBus;
-
-use glint_core::odometry::TrackingStatus;
 
 pub use glint_core::tracker::quantile;
 
