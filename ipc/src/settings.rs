@@ -72,8 +72,9 @@ pub const INITIAL_POSE_MAX_POLL_INTERVAL: Duration = Duration::from_millis(100);
 /// the hint when the sender goes.
 pub const INITIAL_POSE_SENDER_LINGER: Duration = Duration::from_millis(500);
 
-/// Points a `sweep` sample holds: the largest sweep of a supported sensor with margin (a VLP-16
-/// in dual-return mode at 300 rpm gives 115,712; at 600 rpm, 57,856). A sample is
+/// Points a `sweep` sample holds: a VLP-16's or Puck Hi-Res's largest sweep with margin (dual
+/// return at 300 rpm gives 115,712; at 600 rpm, 57,856), and an HDL-32E's except dual return
+/// below 600 rpm; a larger sweep is not published (counted and logged). A sample is
 /// 24 B × 131,072 = 3 MiB of address space; only the points written are ever touched.
 pub const SWEEP_MAX_POINTS: usize = 1 << 17;
 
