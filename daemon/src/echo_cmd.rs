@@ -1,15 +1,18 @@
-//! `glintd echo`: subscribe to a running daemon's poses (or status) and print one line each.
+//! `glintd echo`: subscribe to a running daemon's poses, status or sweeps and print one line
+//! each.
 
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use clap::Args;
-use glint_ipc::{Domain, PoseStream, PoseSubscriber, StatusSubscriber};
+use glint_ipc::{
+    Domain, PointLabel, PoseStream, PoseSubscriber, StatusSubscriber, SweepSubscriber,
+};
 
 /// Arguments of `glintd echo`.
 #[derive(Args, Debug)]
 pub struct EchoArgs {
-    /// The stream: odom, map, predicted or status.
+    /// The stream: odom, map, predicted, status or sweep.
     #[arg(long, default_value = "odom")]
     pub stream: String,
     /// The daemon's domain (service-name prefix).
@@ -73,12 +76,42 @@ pub fn run(args: EchoArgs) -> Result<()> {
                 received += 1;
             }
         }
+    } else if args.stream == "sweep" {
+        let sub = open_waiting(args.wait, || SweepSubscriber::open(&domain))
+            .with_context(|| format!("no glintd publishing sweeps in domain {:?}", args.domain))?;
+        // The sweep service has no event service: poll at a tenth of a sweep period.
+        while !done(received) && !expired() {
+            let line = sub
+                .try_next(|h, points| {
+                    let labelled = |l| points.iter().filter(|p| p.label.contains(l)).count();
+                    format!(
+                        "sweep {} t={} points={} edges={} planes={} intensity={} flags={}",
+                        h.sequence,
+                        h.timestamp_ns,
+                        h.point_count,
+                        labelled(PointLabel::EDGE),
+                        labelled(PointLabel::PLANE),
+                        labelled(PointLabel::INTENSITY),
+                        h.flags
+                    )
+                })
+                .context("cannot receive")?;
+            match line {
+                Some(line) => {
+                    say!("{line}");
+                    received += 1;
+                }
+                None => std::thread::sleep(Duration::from_millis(10)),
+            }
+        }
     } else {
         let stream = match args.stream.as_str() {
             "odom" => PoseStream::Odom,
             "map" => PoseStream::Map,
             "predicted" => PoseStream::Predicted,
-            other => anyhow::bail!("unknown --stream {other:?}: odom, map, predicted or status"),
+            other => {
+                anyhow::bail!("unknown --stream {other:?}: odom, map, predicted, status or sweep")
+            }
         };
         let sub = open_waiting(args.wait, || PoseSubscriber::open(&domain, stream))
             .with_context(|| format!("no glintd publishing in domain {:?}", args.domain))?;

@@ -89,6 +89,13 @@ fn published_sweeps_are_the_decoded_ones_moved_to_base_link() {
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
+    // The operator's view of the same service.
+    let echo = glintd()
+        .args(["echo", "--stream", "sweep", "--domain", &domain])
+        .args(["--count", "5", "--wait", "20", "--timeout", "30"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
     let domain = Domain::new(&domain).unwrap();
     let started = Instant::now();
     let subscriber = loop {
@@ -112,6 +119,13 @@ fn published_sweeps_are_the_decoded_ones_moved_to_base_link() {
         received.push(sweep);
     }
     assert!(replay.wait().unwrap().success());
+    let echoed = echo.wait_with_output().unwrap();
+    assert!(echoed.status.success());
+    let echoed = String::from_utf8_lossy(&echoed.stdout).into_owned();
+    assert_eq!(echoed.lines().count(), 5, "{echoed}");
+    assert!(echoed
+        .lines()
+        .all(|l| l.starts_with("sweep ") && l.contains(" points=")));
 
     let sweeps = decoded(&csv);
     let by_reference: HashMap<u64, &Vec<Decoded>> = sweeps
