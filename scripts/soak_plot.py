@@ -90,6 +90,7 @@ def main():
     ap.add_argument("--report", help="also write the figures as a Markdown page here")
     ap.add_argument("--command", default="bash scripts/soak.sh",
                     help="the command that produced the CSVs, for the report")
+    ap.add_argument("--commit", help="the commit the soaks ran (default: the checkout's)")
     args = ap.parse_args()
     runs = {"SLAM": (load(args.slam), log_facts(args.slam_log)),
             "localisation": (load(args.localisation), log_facts(args.localisation_log))}
@@ -115,7 +116,7 @@ def main():
     fig.tight_layout()
     fig.savefig(args.plot, dpi=110)
 
-    out = [f"Commit {commit()}; `{args.command}`; written by `scripts/soak_plot.py`.", "",
+    out = [f"Commit {args.commit or commit()}; `{args.command}`; written by `scripts/soak_plot.py`.", "",
            "| | SLAM | localisation |", "|---|---|---|"]
 
     def row(label, f):
