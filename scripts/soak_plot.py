@@ -6,9 +6,9 @@ localisation side by side) and a Markdown report with the figures the soak is ju
   - every sweep processed, no panic (from the logs);
   - per-sweep CPU time flat: the last hour's median against the first hour's;
   - localisation: RSS flat, the last hour's mean against the first hour's (after the first
-    ten minutes of warm-up, in which the run's bounded buffers fill);
-  - SLAM: RSS growth per metre driven, fitted past the warm-up, against the back end's
-    documented ~5 kB per metre on a route it keeps revisiting (docs/backend.md).
+    ten minutes of start-up, in which the local maps and the services' shared memory fill);
+  - SLAM: RSS growth per metre driven, fitted past the start-up, against the back end's
+    memory per metre on a route it keeps revisiting (docs/backend.md).
 """
 import argparse
 import csv
@@ -21,7 +21,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-WARM_UP_S = 600.0
+START_UP_S = 600.0
 HOUR_S = 3600.0
 
 
@@ -46,9 +46,9 @@ def mean(values):
 
 
 def first_and_last_hour(rows, key):
-    """The column's samples in the first hour past the warm-up and in the last hour."""
+    """The column's samples in the first hour past the start-up and in the last hour."""
     end = rows[-1]["sensor_s"]
-    first = [r[key] for r in rows if WARM_UP_S <= r["sensor_s"] < WARM_UP_S + HOUR_S]
+    first = [r[key] for r in rows if START_UP_S <= r["sensor_s"] < START_UP_S + HOUR_S]
     last = [r[key] for r in rows if r["sensor_s"] >= end - HOUR_S]
     return first, last
 
@@ -154,11 +154,11 @@ def main():
     row("RSS, first → last hour, mean (MiB)", rss)
 
     def growth(rows, facts):
-        past = [r for r in rows if r["sensor_s"] >= WARM_UP_S]
+        past = [r for r in rows if r["sensor_s"] >= START_UP_S]
         s = slope([r["distance_m"] for r in past], [r["rss_mib"] * 1048576 for r in past])
         return f"{s / 1e3:.2f} kB/m"
 
-    row("RSS growth per metre driven (fit past the warm-up)", growth)
+    row("RSS growth per metre driven (fit past the start-up)", growth)
     loc = runs["localisation"][1]["localisation"]
     slam = runs["SLAM"][1]["backend"]
     out += ["", f"SLAM back end: {slam or '—'}", "", f"Localisation: {loc or '—'}", ""]
@@ -171,7 +171,8 @@ def main():
                 "simulated VLP-16, run in process, through the whole pipeline at the stages' own "
                 "pace: once mapping (SLAM) and once localising in a map of the same site, made "
                 "from two laps beforehand. Each row of the CSVs is one wall-clock minute; the "
-                "first ten minutes of sensor time are warm-up (the bounded buffers fill) and "
+                "first ten minutes of sensor time are start-up (the local maps and the services' "
+                "shared memory fill) and "
                 "are left out of the first-hour figures. *CPU per sweep* is the CPU time of "
                 "every pipeline thread (front end, odometry, back end or localiser, publishing) "
                 "but the simulated sensor's, so other work on the machine leaves it unchanged; "
