@@ -201,10 +201,10 @@ pub struct GraphConfig {
     pub optimizer: PoseGraphConfig,
     /// While running, an optimisation moves only the newest this-many keyframes and holds the
     /// older ones where they are, so it costs the same after hours of driving as after
-    /// minutes (a robot repeating its route adds a keyframe every metre or so, and a whole-graph
-    /// optimisation every ten keyframes grew to half a second at 12,000). A loop closed over
-    /// more keyframes than this corrects only their newest part. The last optimisation of a run
-    /// moves them all. 0: always the whole graph.
+    /// minutes (a robot repeating its route adds a keyframe every metre or so; with whole-graph
+    /// optimisations a soak's CPU time per sweep grew from 10.6 to 18.4 ms over 12,000
+    /// keyframes). A loop closed over more keyframes than this corrects only their newest part.
+    /// The last optimisation of a run moves them all. 0: always the whole graph.
     pub optimize_window: usize,
 }
 
