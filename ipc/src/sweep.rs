@@ -5,7 +5,7 @@
 //! The payload is a slice of [`SweepPoint`] with a [`SweepHeader`] as iceoryx2's user header,
 //! loaned in shared memory sized for the largest sweep ([`settings::SWEEP_MAX_POINTS`]) and
 //! written in place: zero copy from the daemon to every subscriber. Both types are `#[repr(C)]`
-//! with explicit padding, like the pose contract (`ipc/README.md` tables them). The service
+//! without padding, like the pose contract (`ipc/README.md` tables them). The service
 //! keeps its own, smaller limits (see [`settings`]), so its memory is bounded and stated; a
 //! subscriber that stalls loses sweeps, never slows the daemon.
 
@@ -221,9 +221,11 @@ impl SweepPublisher {
     }
 
     /// Connects subscribers that arrived since the last publish (they get the last sweep).
-    pub fn update_connections(&self) {
+    pub fn update_connections(
+        &self,
+    ) -> Result<(), iceoryx2::port::update_connections::ConnectionFailure> {
         use iceoryx2::port::update_connections::UpdateConnections;
-        let _ = self.publisher.update_connections();
+        self.publisher.update_connections()
     }
 }
 

@@ -88,7 +88,7 @@ fn a_late_subscriber_gets_the_last_sweep_and_a_stalled_one_loses_the_oldest() {
         publisher.publish(header(t), 100, point).expect("publish");
     }
     let late = SweepSubscriber::open(&domain).expect("late subscriber");
-    publisher.update_connections();
+    publisher.update_connections().expect("connect");
     let (h, _) = next(&late).expect("the history");
     assert_eq!(h.sequence, 9);
     // The stalled subscriber kept the newest sweeps its buffer holds.
