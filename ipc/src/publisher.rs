@@ -201,16 +201,9 @@ impl<T: core::fmt::Debug + ZeroCopySend + Copy + 'static> Outlet<T> {
         if let Ok(port) = PortName::new(stream.as_str()) {
             builder = builder.name(&port);
         }
-        let publisher = builder.create().map_err(|source| match source {
-            PublisherCreateError::ExceedsMaxSupportedPublishers => PublisherError::DomainInUse {
-                domain: domain.to_string(),
-                service: name.clone(),
-            },
-            source => PublisherError::Publisher {
-                service: name.clone(),
-                source,
-            },
-        })?;
+        let publisher = builder
+            .create()
+            .map_err(publisher_create_error(domain, &name))?;
 
         let event_name = domain.event_service_name(stream);
         let event = node
@@ -271,6 +264,24 @@ impl<T: core::fmt::Debug + ZeroCopySend + Copy + 'static> Outlet<T> {
             .notify()
             .map_err(|source| UpdateConnectionsError::Notify { stream, source })?;
         Ok(())
+    }
+}
+
+/// Turns iceoryx2's refusal of a publisher port on service `name` into ours: a second
+/// publisher means another daemon serves the domain.
+pub(crate) fn publisher_create_error<'a>(
+    domain: &'a Domain,
+    name: &'a str,
+) -> impl Fn(PublisherCreateError) -> PublisherError + 'a {
+    move |source| match source {
+        PublisherCreateError::ExceedsMaxSupportedPublishers => PublisherError::DomainInUse {
+            domain: domain.to_string(),
+            service: name.to_owned(),
+        },
+        source => PublisherError::Publisher {
+            service: name.to_owned(),
+            source,
+        },
     }
 }
 

@@ -9,7 +9,7 @@
 //! keeps its own, smaller limits (see [`settings`]), so its memory is bounded and stated; a
 //! subscriber that stalls loses sweeps, never slows the daemon.
 
-use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
+use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::LoanError;
 use iceoryx2::prelude::{AllocationStrategy, BackpressureStrategy, Node, ZeroCopySend};
@@ -17,7 +17,7 @@ use thiserror::Error;
 
 use crate::names::{Domain, Stream};
 use crate::payload::StatusFlags;
-use crate::publisher::{service_name, PublisherError};
+use crate::publisher::{publisher_create_error, service_name, PublisherError};
 use crate::subscriber::{open_error, subscriber_service_name, ReceiveError, SubscribeError};
 use crate::{node_builder, settings, Transport};
 
@@ -172,18 +172,7 @@ impl SweepPublisher {
             .max_loaned_samples(1)
             .backpressure_strategy(BackpressureStrategy::DiscardData)
             .create()
-            .map_err(|source| match source {
-                PublisherCreateError::ExceedsMaxSupportedPublishers => {
-                    PublisherError::DomainInUse {
-                        domain: domain.to_string(),
-                        service: name.clone(),
-                    }
-                }
-                source => PublisherError::Publisher {
-                    service: name.clone(),
-                    source,
-                },
-            })?;
+            .map_err(publisher_create_error(domain, &name))?;
         Ok(Self {
             publisher,
             sequence: 0,
