@@ -12,6 +12,7 @@ macro_rules! say {
 }
 
 pub mod bench_cmd;
+pub mod bridge_cmd;
 pub mod capture;
 pub mod config;
 pub mod decode_cmd;

@@ -7,8 +7,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 use glintd::{
-    bench_cmd, decode_cmd, echo_cmd, eval_cmd, info_cmd, initial_pose_cmd, map_cmd, posegraph_cmd,
-    record_cmd, replay_cmd, run_cmd,
+    bench_cmd, bridge_cmd, decode_cmd, echo_cmd, eval_cmd, info_cmd, initial_pose_cmd, map_cmd,
+    posegraph_cmd, record_cmd, replay_cmd, run_cmd,
 };
 #[cfg(feature = "sim")]
 use glintd::{demo_cmd, sim_cmd, soak_cmd};
@@ -55,6 +55,9 @@ enum Command {
     Posegraph(posegraph_cmd::PoseGraphArgs),
     /// Look into a saved site map: `info` (header, extent, size), `export` (a point cloud).
     Map(map_cmd::MapArgs),
+    /// The fleet link: publish a running glintd's poses and status over Zenoh and serve its
+    /// site maps (see docs/fleet.md).
+    Bridge(bridge_cmd::BridgeArgs),
     /// Time the odometry per sweep on one thread (pin it with taskset for the one-core figure).
     Bench(bench_cmd::BenchArgs),
 }
@@ -83,6 +86,8 @@ fn main() -> ExitCode {
     // The daemon's modes report once a second; the tools only warn.
     let default_level = match cli.command {
         Command::Run(_) | Command::Record(_) => "info",
+        // Zenoh's own info lines would drown the bridge's.
+        Command::Bridge(_) => "warn,glintd=info",
         _ => "warn",
     };
     init_logging(default_level);
@@ -107,6 +112,7 @@ fn main() -> ExitCode {
         Command::Soak(args) => soak_cmd::run(args),
         Command::Posegraph(args) => posegraph_cmd::run(args),
         Command::Bench(args) => bench_cmd::run(args),
+        Command::Bridge(args) => bridge_cmd::run(args),
         Command::Map(args) => map_cmd::run(args),
     };
     match result {

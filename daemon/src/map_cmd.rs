@@ -1,7 +1,9 @@
 //! `glintd map`: look into a saved site map (`*.glintmap`): `info` prints its header, extent,
 //! counts and size after verifying it; `export` writes its points in the map frame as a point
-//! cloud any viewer opens (PCD, or PLY by the file name). Reading and checking the file is
-//! `glint-map`'s; placing the points is the map's poses'.
+//! cloud any viewer opens (PCD, or PLY by the file name); `fetch` gets a map from any peer on
+//! the fleet link that serves it (`glintd bridge --serve-map`) and replaces the local file only
+//! once the whole map is verified. Reading and checking the file is `glint-map`'s; placing the
+//! points is the map's poses'; the transfer is `glint-fleet`'s.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -40,6 +42,37 @@ pub enum MapCommand {
         #[arg(long, default_value_t = 0.1)]
         voxel: f32,
     },
+    /// Fetch a site map from the fleet link (glint/<site>/maps/<NAME>), verify it and install
+    /// it at --out; on any failure the file at --out is left as it was.
+    Fetch(FetchArgs),
+}
+
+/// Arguments of `glintd map fetch`.
+#[derive(Args, Debug)]
+pub struct FetchArgs {
+    /// The map's name (the served file's stem).
+    pub name: String,
+    /// Where to install it.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// The bridge's TOML configuration, for its [link] settings and site.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// The site.
+    #[arg(long)]
+    pub site: Option<String>,
+    /// A peer or router to connect to (`tls/fleet.example:7447`); repeatable.
+    #[arg(long)]
+    pub connect: Vec<String>,
+    /// An endpoint to listen on; repeatable.
+    #[arg(long)]
+    pub listen: Vec<String>,
+    /// Allow plain TCP without TLS settings.
+    #[arg(long)]
+    pub insecure: bool,
+    /// Seconds to wait for a peer serving the map (and for each chunk).
+    #[arg(long, default_value_t = 30.0)]
+    pub timeout: f64,
 }
 
 /// Runs the command.
@@ -47,7 +80,48 @@ pub fn run(args: MapArgs) -> Result<()> {
     match args.command {
         MapCommand::Info { map } => info(&map),
         MapCommand::Export { map, out, voxel } => export(&map, &out, voxel),
+        MapCommand::Fetch(args) => fetch(&args),
     }
+}
+
+fn fetch(args: &FetchArgs) -> Result<()> {
+    anyhow::ensure!(
+        args.timeout.is_finite() && args.timeout > 0.0,
+        "--timeout must be a positive number of seconds"
+    );
+    let config = crate::bridge_cmd::LinkArgs {
+        config: &args.config,
+        listen: &args.listen,
+        connect: &args.connect,
+        insecure: args.insecure,
+    }
+    .resolve()?;
+    let site = args
+        .site
+        .clone()
+        .or(config.site)
+        .unwrap_or_else(|| "site".into());
+    let session = glint_fleet::open(&config.link).context("cannot open the fleet link")?;
+    let fetched = glint_fleet::fetch_map(
+        &session,
+        &site,
+        &args.name,
+        &args.out,
+        std::time::Duration::from_secs_f64(args.timeout),
+    );
+    let _ = zenoh::Wait::wait(session.close());
+    let report = fetched?;
+    say!(
+        "{}: {} bytes from {} in {:.2} s ({} chunks), verified: {} keyframes, {} points",
+        args.out.display(),
+        report.bytes,
+        report.key,
+        report.seconds,
+        report.chunks,
+        report.counts.keyframes,
+        report.counts.points
+    );
+    Ok(())
 }
 
 fn info(path: &std::path::Path) -> Result<()> {

@@ -404,10 +404,16 @@ mod tests {
         let spinner = std::thread::Builder::new()
             .name("glint-spin-test".into())
             .spawn(|| {
+                // Spin until the thread itself has used 60 ms of CPU (however busy the machine
+                // is), within a generous bound for a broken reader.
                 let spin = Instant::now();
                 let mut x = 0u64;
-                while spin.elapsed() < Duration::from_millis(100) {
-                    x = x.wrapping_mul(6364136223846793005).wrapping_add(1);
+                while spin.elapsed() < Duration::from_secs(20)
+                    && thread_cpu_s("glint-spin-test").is_none_or(|t| t < 0.06)
+                {
+                    for _ in 0..100_000 {
+                        x = x.wrapping_mul(6364136223846793005).wrapping_add(1);
+                    }
                 }
                 std::hint::black_box(x);
                 thread_cpu_s("glint-spin-test")

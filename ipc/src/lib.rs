@@ -10,6 +10,7 @@
 //! | module | owns |
 //! | --- | --- |
 //! | [`payload`] | [`Pose`], [`Status`], [`InitialPose`], [`StatusFlags`], [`Frame`] — the wire structs |
+//! | [`bytes`] | [`Pose`] and [`Status`] as little-endian bytes for byte-string transports (the fleet link) |
 //! | [`names`] | [`Domain`] validation and the `glint/<domain>/<stream>[/event]` names |
 //! | [`settings`] | history, buffer, overflow and port limits of the services |
 //! | [`publisher`] | [`PosePublisher`] (the daemon's side) |
@@ -17,6 +18,7 @@
 //! | [`sweep`] | the `sweep` service: [`SweepPoint`], [`SweepHeader`], [`SweepPublisher`], [`SweepSubscriber`] |
 //! | [`initial_pose`] | hints, roles reversed: [`InitialPoseSubscriber`] (the daemon's side), [`InitialPosePublisher`], [`send_initial_pose`] |
 
+pub mod bytes;
 pub mod initial_pose;
 pub mod names;
 pub mod payload;
@@ -25,6 +27,7 @@ pub mod settings;
 pub mod subscriber;
 pub mod sweep;
 
+pub use bytes::BytesError;
 pub use initial_pose::{
     send_initial_pose, InitialPoseCreateError, InitialPoseOpenError, InitialPosePublisher,
     InitialPoseSendError, InitialPoseSubscriber, SendInitialPoseError,

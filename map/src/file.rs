@@ -98,6 +98,28 @@ pub fn save(path: impl AsRef<Path>, map: &SiteMap) -> Result<SaveReport, MapErro
     let path = path.as_ref();
     check(map).map_err(|e| in_file(path, e))?;
     let bytes = encode(map);
+    write_atomically(path, &bytes)?;
+    Ok(SaveReport {
+        path: path.to_path_buf(),
+        bytes: bytes.len() as u64,
+        counts: MapCounts::of(map),
+    })
+}
+
+/// Replaces the map at `path` with `bytes` received from elsewhere (another robot, a fleet
+/// server), after checking they are a whole, valid map exactly as [`load`] would: a truncated,
+/// corrupted, foreign or newer-version transfer is refused and the file at `path` stays as it
+/// was. The write is as crash-safe as [`save`]'s. Returns the map's counts.
+pub fn install(path: impl AsRef<Path>, bytes: &[u8]) -> Result<MapCounts, MapError> {
+    let path = path.as_ref();
+    let map = decode(bytes)?;
+    write_atomically(path, bytes)?;
+    Ok(MapCounts::of(&map))
+}
+
+/// Writes `bytes` to a temporary file beside `path`, syncs it, renames it over `path` and
+/// syncs the directory: a crash at any point leaves either the old file or the new one.
+fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), MapError> {
     let Some(name) = path.file_name() else {
         return Err(io("write", path, std::io::ErrorKind::InvalidInput.into()));
     };
@@ -115,7 +137,7 @@ pub fn save(path: impl AsRef<Path>, map: &SiteMap) -> Result<SaveReport, MapErro
         SAVES.fetch_add(1, Ordering::Relaxed)
     ));
     let temporary = dir.join(temporary);
-    if let Err(e) = write_synced(&temporary, &bytes) {
+    if let Err(e) = write_synced(&temporary, bytes) {
         // Best effort: the error worth reporting is the write's.
         let _ = fs::remove_file(&temporary);
         return Err(e);
@@ -127,11 +149,7 @@ pub fn save(path: impl AsRef<Path>, map: &SiteMap) -> Result<SaveReport, MapErro
     File::open(dir)
         .and_then(|d| d.sync_all())
         .map_err(|e| io("sync the directory", dir, e))?;
-    Ok(SaveReport {
-        path: path.to_path_buf(),
-        bytes: bytes.len() as u64,
-        counts: MapCounts::of(map),
-    })
+    Ok(())
 }
 
 /// Creates `path` holding `bytes` and waits until they are on the disk.
@@ -230,6 +248,30 @@ mod tests {
         fn drop(&mut self) {
             let _ = fs::remove_dir_all(&self.0);
         }
+    }
+
+    #[test]
+    fn received_bytes_are_installed_only_when_they_are_a_whole_valid_map() {
+        let scratch = Scratch::new("install");
+        let path = scratch.0.join("site.glintmap");
+        let old = site_map(3, 4, 50);
+        save(&path, &old).unwrap();
+        let new = encode(&site_map(4, 6, 60));
+        let mut corrupted = new.clone();
+        corrupted[new.len() / 2] ^= 0x20;
+        for (bad, what) in [
+            (&new[..new.len() - 100], "truncated"),
+            (&corrupted[..], "corrupted"),
+            (&b"not a map at all"[..], "not a glintmap"),
+        ] {
+            let error = install(&path, bad).unwrap_err().to_string();
+            assert!(error.contains(what), "{error}");
+            assert_same(&load(&path).unwrap(), &old);
+        }
+        let counts = install(&path, &new).unwrap();
+        assert_eq!(counts.keyframes, 6);
+        assert_eq!(fs::read(&path).unwrap(), new);
+        assert_eq!(scratch.names(), vec!["site.glintmap".to_string()]);
     }
 
     #[test]

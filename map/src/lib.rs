@@ -6,7 +6,7 @@
 //! | module | owns |
 //! | --- | --- |
 //! | [`format`] | [`encode`], [`decode`], [`check`]: bytes ↔ [`SiteMap`], and what a valid map is |
-//! | [`file`] | [`save`] (temporary file, sync, rename), [`load`], [`info`] |
+//! | [`file`] | [`save`] (temporary file, sync, rename), [`install`] (received bytes, verified first), [`load`], [`info`] |
 
 pub mod file;
 pub mod format;
@@ -16,7 +16,7 @@ mod test_map;
 
 use std::path::PathBuf;
 
-pub use file::{info, load, save, MapCounts, MapInfo, SaveReport};
+pub use file::{info, install, load, save, MapCounts, MapInfo, SaveReport};
 pub use format::{check, decode, encode, FORMAT_VERSION, MAGIC};
 pub use glint_core::site_map::{SiteKeyframe, SiteMap};
 
