@@ -12,7 +12,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds=${1:-60}
 map=${2:-}
-cargo build --release --quiet -p glintd -p glint-fleet --example fleet_latency
+cargo build --release --quiet -p glintd
+cargo build --release --quiet -p glint-fleet --example fleet_latency
 glintd=target/release/glintd
 work=$(mktemp -d)
 pids=()
@@ -28,7 +29,10 @@ serve=()
     "${serve[@]}" > "$work/bridge.out" 2> "$work/bridge.err" &
 bridge=$!
 pids+=("$bridge")
-until grep -q ready "$work/bridge.err"; do sleep 0.1; done
+until grep -q ready "$work/bridge.err"; do
+    kill -0 "$bridge" 2> /dev/null || { cat "$work/bridge.err" >&2; exit 1; }
+    sleep 0.1
+done
 target/release/examples/fleet_latency "$domain" "$endpoint" bench agv > "$work/latency.out" &
 pids+=("$!")
 until grep -q subscribed "$work/latency.out"; do sleep 0.1; done

@@ -25,6 +25,9 @@ mkdir -p "$out"
 # Its own copy: a rebuild while the soak runs must not change the second run's binary.
 cp target/release/glintd "$out/glintd"
 glintd=$out/glintd
+# The daemon's environment as the systemd unit sets it (the malloc thresholds), so the soak
+# measures the memory behaviour a robot gets.
+read -r -a unit_env <<< "$(sed -n 's/^Environment=//p' systemd/glintd.service | tr '\n' ' ')"
 
 echo "== the site map: two laps of the $scenario (seed $seed), mapped"
 "$glintd" sim "$scenario" --seed "$seed" --seconds 80 --out "$out/site" > "$out/site.log"
@@ -38,7 +41,7 @@ for mode in slam localisation; do
         extra=(--localise "$out/site.glintmap")
     fi
     status=0
-    "$glintd" soak --scenario "$scenario" --seed "$seed" --sweeps "$sweeps" --every "$every" \
+    env "${unit_env[@]}" "$glintd" soak --scenario "$scenario" --seed "$seed" --sweeps "$sweeps" --every "$every" \
         --domain "soak-$mode" --csv "$out/$mode.csv" "${extra[@]}" > "$out/$mode.log" 2>&1 \
         || status=$?
     tail -n 3 "$out/$mode.log"

@@ -175,8 +175,10 @@ def main():
                 "shared memory fill) and "
                 "are left out of the first-hour figures. *CPU per sweep* is the CPU time of "
                 "every pipeline thread (front end, odometry, back end or localiser, publishing) "
-                "but the simulated sensor's, so other work on the machine leaves it unchanged; "
-                "latency and wall-clock compute include waiting for a core.", "",
+                "but the simulated sensor's, so other work on the machine changes it only through "
+                "the cores and caches it shares; latency and wall-clock compute include waiting "
+                "for a core. Both run with the environment `systemd/glintd.service` gives the "
+                "daemon (`Environment=`: glibc's fixed malloc thresholds).", "",
                 f"![soak]({image})", ""]
         with open(args.report, "w") as f:
             f.write("\n".join(head + out))
