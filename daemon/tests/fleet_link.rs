@@ -562,6 +562,17 @@ impl Pki {
     }
 }
 
+/// Zenoh access control letting only peers whose certificate's CN is `fleet-server` ask for
+/// and receive maps.
+const MAPS_FOR_THE_FLEET_SERVER: &str = r#"
+[link.access_control]
+enabled = true
+default_permission = "deny"
+rules = [{ id = "maps", messages = ["query", "reply", "declare_queryable"], flows = ["egress", "ingress"], permission = "allow", key_exprs = ["glint/test/maps/**"] }]
+subjects = [{ id = "server", cert_common_names = ["fleet-server"], link_protocols = ["tls"] }]
+policies = [{ rules = ["maps"], subjects = ["server"] }]
+"#;
+
 /// A bridge or fetch configuration file with a `[link.tls]` table.
 fn tls_config(dir: &Path, file: &str, ca: &Path, leaf: Option<&str>, mutual: bool) -> PathBuf {
     let mut text = format!(
@@ -652,6 +663,18 @@ fn tls_and_mutual_tls_admit_only_the_right_certificates() {
     assert!(fetch_with(&member, &endpoint));
     assert!(!fetch_with(&anonymous, &endpoint));
     assert!(!fetch_with(&intruder, &endpoint));
+    drop(bridge);
+
+    // Access control on top: of two clients with the fleet's certificates, only the one named
+    // fleet-server gets the map.
+    let guarded = tls_config(&dir, "bridge-acl.toml", &fleet.ca, Some("robot"), true);
+    let text = std::fs::read_to_string(&guarded).unwrap();
+    std::fs::write(&guarded, text + MAPS_FOR_THE_FLEET_SERVER).unwrap();
+    let (bridge, port) = tls_bridge(&guarded);
+    let endpoint = format!("tls/localhost:{port}");
+    let other_robot = tls_config(&dir, "robot.toml", &fleet.ca, Some("robot"), true);
+    assert!(fetch_with(&member, &endpoint));
+    assert!(!fetch_with(&other_robot, &endpoint));
     drop(bridge);
     std::fs::remove_dir_all(dir).unwrap();
 }
