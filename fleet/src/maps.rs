@@ -29,8 +29,8 @@ use crate::keys::{FleetKeys, KeyError};
 pub const MAP_CHUNK_BYTES: u64 = 1 << 20;
 
 /// Largest map a fetch accepts, bytes: the whole file is held in memory to be verified before
-/// it is installed.
-const MAX_MAP_BYTES: u64 = 4 << 30;
+/// it is installed. An hour of mapping makes about 34 MB.
+const MAX_MAP_BYTES: u64 = 1 << 30;
 
 /// Serves map files as queryables for as long as it lives.
 pub struct MapServer {
@@ -306,7 +306,8 @@ pub fn fetch_map(
                 "the map is {size} bytes, more than the {MAX_MAP_BYTES} accepted"
             )));
         }
-        let mut bytes = Vec::with_capacity(size as usize);
+        // Grown as chunks arrive rather than reserved from the size a peer claims.
+        let mut bytes = Vec::with_capacity(size.min(64 << 20) as usize);
         let mut changed = false;
         while (bytes.len() as u64) < size {
             let offset = bytes.len() as u64;
