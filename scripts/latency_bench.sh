@@ -3,13 +3,15 @@
 # real-time pace (the simulator's own process), and reports the latency from each sweep's last
 # packet to its published pose (median and p99), sweeps processed and dropped.
 #
-#   bash scripts/latency_bench.sh [SCENARIO] [SECONDS] [SEED] [stress] [pinned]
+#   bash scripts/latency_bench.sh [SCENARIO] [SECONDS] [SEED] [stress] [pinned] [viewer|stalled]
 #                                                                # defaults: warehouse 60 3
 #
 # `stress` keeps a busy loop running on the last core the whole time, as the navigation stack
 # would on the robot's computer; `pinned` pins the odometry thread to core 0 at real-time priority
 # 40 (`[pipeline] odometry_cpu`, `odometry_priority`; the priority needs CAP_SYS_NICE, which root
-# has, and is reported as refused otherwise).
+# has, and is reported as refused otherwise). `viewer` runs `glint-view --save` on the domain the
+# whole time (it reads every service and writes a recording); `stalled` starts it and stops it
+# with SIGSTOP once it is attached, so its ports are held and never read.
 #
 # Not run by CI (it takes SECONDS of wall time). The replay equivalent:
 #   glintd replay CAPTURE --pace realtime     (prints the same latency figures)
@@ -18,9 +20,21 @@ cd "$(dirname "$0")/.."
 scenario=${1:-warehouse}
 seconds=${2:-60}
 seed=${3:-3}
-stress=${4:-}
-pinned=${5:-}
+stress=
+pinned=
+consumer=
+for flag in "${@:4}"; do
+    case "$flag" in
+        stress) stress=stress ;;
+        pinned) pinned=pinned ;;
+        viewer | stalled) consumer=$flag ;;
+        *) echo "unknown option $flag" >&2; exit 2 ;;
+    esac
+done
 cargo build --release -p glintd --quiet
+if [ -n "$consumer" ]; then
+    cargo build --release -p glint-view --quiet
+fi
 glintd=target/release/glintd
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
@@ -45,15 +59,30 @@ if [ "$stress" = stress ]; then
     taskset -c "$last_core" python3 -c 'while True: pass' &
     hog=$!
 fi
-trap 'if [ -n "$hog" ]; then kill "$hog" 2>/dev/null || true; fi; rm -rf "$work"' EXIT
+view=
+trap 'for p in $hog $view; do kill -CONT "$p" 2>/dev/null; kill "$p" 2>/dev/null || true; done; rm -rf "$work"' EXIT
 GLINT_LOG=info NO_COLOR=1 "$glintd" run --config "$work/glintd.toml" 2> "$work/log" &
 daemon=$!
 until grep -q ready "$work/log"; do sleep 0.1; done
+if [ -n "$consumer" ]; then
+    target/release/glint-view --domain "latency-bench-$$" --save "$work/view.rrd" 2> "$work/view.log" &
+    view=$!
+    # Attached once the services it looks for ten times a second are there.
+    sleep 1.5
+    if [ "$consumer" = stalled ]; then
+        kill -STOP "$view"
+    fi
+fi
 "$glintd" sim "$scenario" --seconds "$seconds" --seed "$seed" --udp 127.0.0.1 \
     --data-port "$data_port" --position-port "$position_port" > /dev/null 2>&1
 sleep 0.5
 kill -TERM "$daemon"
 wait "$daemon"
-echo "glintd run, $scenario seed $seed, $seconds s at real-time pace over UDP${stress:+, a busy loop on the last core}${pinned:+, odometry pinned to core 0 at SCHED_FIFO 40}:"
+if [ -n "$view" ]; then
+    kill -CONT "$view" 2>/dev/null || true
+    kill -TERM "$view"
+    wait "$view" || true
+fi
+echo "glintd run, $scenario seed $seed, $seconds s at real-time pace over UDP${stress:+, a busy loop on the last core}${pinned:+, odometry pinned to core 0 at SCHED_FIFO 40}${consumer:+, glint-view attached (${consumer})}:"
 grep -E "pinned to a core|real-time priority" "$work/log" | sed 's/.*\(INFO\|WARN\) //' || true
 grep stopped "$work/log" | sed 's/.*INFO //'

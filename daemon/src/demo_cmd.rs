@@ -48,6 +48,10 @@ pub fn run(args: DemoArgs) -> Result<()> {
         glint_sim::simulate_to_dir(&config, &args.out).context("the simulation failed")?;
     say!("{}", summary.report().trim_end());
     say!(
+        "to look at it, start this in another terminal (it waits for the daemon; the viewer program comes from pip install rerun-sdk==0.36.3): cargo run --release -p glint-view -- --domain {} --spawn",
+        args.domain
+    );
+    say!(
         "replaying it through the pipeline (driver, front end, odometry, back end), publishing on iceoryx2 domain {:?} …",
         args.domain
     );
