@@ -70,7 +70,7 @@ impl Scene {
         rec.log_static("world", &rerun::ViewCoordinates::RIGHT_HAND_Z_UP())?;
         rec.log_static(
             "world",
-            &rerun::AnnotationContext::new(CLASS_DESCRIPTIONS.map(|(id, label, rgb)| {
+            &rerun::AnnotationContext::new(colour::CLASSES.map(|(id, label, rgb)| {
                 (id, label, rerun::Rgba32::from_rgb(rgb[0], rgb[1], rgb[2]))
             })),
         )?;
@@ -145,8 +145,7 @@ impl Scene {
                     .with_level(rerun::TextLogLevel::INFO),
             )?;
         }
-        let tracked = flags.contains(StatusFlags::TRACKING)
-            && !flags.intersects(StatusFlags::LOST.with(StatusFlags::RELOCALISING));
+        let tracked = is_tracked(flags);
         self.rec.log(
             "metrics/tracking",
             &rerun::Scalars::single(if tracked { 1.0 } else { 0.0 }),
@@ -180,10 +179,14 @@ impl Scene {
         )?;
         self.robot = Some(position);
         push_track(&mut self.map_track, position);
-        self.map_poses
-            .push_back((pose.timestamp_ns, isometry(pose)));
-        if self.map_poses.len() > RECENT_POSES {
-            self.map_poses.pop_front();
+        // Only a tracked pose places its sweep in the gathered map: one still relocalising or
+        // lost is not known to be in the map's frame.
+        if tracked {
+            self.map_poses
+                .push_back((pose.timestamp_ns, isometry(pose)));
+            if self.map_poses.len() > RECENT_POSES {
+                self.map_poses.pop_front();
+            }
         }
         Ok(())
     }
@@ -214,7 +217,7 @@ impl Scene {
     pub fn on_sweep(&mut self, header: &SweepHeader, points: &[SweepPoint]) {
         self.at(header.timestamp_ns);
         self.counts.sweeps += 1;
-        if let Err(e) = self.log_sweep(header, points) {
+        if let Err(e) = self.log_sweep(points) {
             eprintln!("glint-view: cannot log a sweep: {e}");
         }
         if let Some(pose) = self.map_pose_at(header.timestamp_ns) {
@@ -222,7 +225,7 @@ impl Scene {
         }
     }
 
-    fn log_sweep(&mut self, _header: &SweepHeader, points: &[SweepPoint]) -> Result<()> {
+    fn log_sweep(&mut self, points: &[SweepPoint]) -> Result<()> {
         let finite = |p: &&SweepPoint| p.position.iter().all(|v| v.is_finite());
         self.rec.log(
             "world/robot/sweep",
@@ -252,7 +255,7 @@ impl Scene {
         Ok(())
     }
 
-    /// The `map` pose of `base_link` at `timestamp_ns`, if it has arrived.
+    /// The tracked `map` pose of `base_link` at `timestamp_ns`, if it has arrived.
     fn map_pose_at(&self, timestamp_ns: u64) -> Option<Isometry3<f64>> {
         self.map_poses
             .iter()
@@ -403,9 +406,6 @@ impl Scene {
     }
 }
 
-/// Feature classes for the annotation context (see [`colour::CLASSES`]).
-const CLASS_DESCRIPTIONS: [(u16, &str, [u8; 3]); 3] = colour::CLASSES;
-
 /// The time series and their legends.
 const SERIES: [(&str, &str); 8] = [
     ("metrics/latency_median_ms", "latency, median (ms)"),
@@ -425,6 +425,12 @@ fn class_of(label: PointLabel) -> Option<u16> {
         .zip(colour::CLASSES)
         .find(|(bit, _)| label.contains(**bit))
         .map(|(_, (id, _, _))| id)
+}
+
+/// Whether a `map` pose is tracked in the map: neither lost nor still relocalising.
+fn is_tracked(flags: StatusFlags) -> bool {
+    flags.contains(StatusFlags::TRACKING)
+        && !flags.intersects(StatusFlags::LOST.with(StatusFlags::RELOCALISING))
 }
 
 /// The state a `map` pose's flags describe, most severe first.
@@ -493,6 +499,10 @@ mod tests {
         assert_eq!(state_name(StatusFlags::RELOCALISING), "RELOCALISING");
         assert_eq!(state_name(t.with(StatusFlags::LOST)), "LOST");
         assert_eq!(state_name(StatusFlags::NONE), "NOT TRACKING");
+        assert!(is_tracked(t.with(StatusFlags::DEGENERATE)));
+        assert!(!is_tracked(t.with(StatusFlags::LOST)));
+        assert!(!is_tracked(t.with(StatusFlags::RELOCALISING)));
+        assert!(!is_tracked(StatusFlags::INITIALISING));
     }
 
     #[test]
