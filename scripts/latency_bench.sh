@@ -86,3 +86,6 @@ fi
 echo "glintd run, $scenario seed $seed, $seconds s at real-time pace over UDP${stress:+, a busy loop on the last core}${pinned:+, odometry pinned to core 0 at SCHED_FIFO 40}${consumer:+, glint-view attached (${consumer})}:"
 grep -E "pinned to a core|real-time priority" "$work/log" | sed 's/.*\(INFO\|WARN\) //' || true
 grep stopped "$work/log" | sed 's/.*INFO //'
+if [ -n "$view" ]; then
+    grep "logged" "$work/view.log" || echo "glint-view logged nothing"
+fi
