@@ -186,14 +186,6 @@ fn shared_memory_poses(
     })
 }
 
-fn python_has_zenoh() -> bool {
-    Command::new("python3")
-        .args(["-c", "import zenoh"])
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
-
 #[test]
 fn a_replay_reaches_rust_and_python_fleet_subscribers_byte_for_byte() {
     let _pace = real_time();
@@ -219,7 +211,7 @@ fn a_replay_reaches_rust_and_python_fleet_subscribers_byte_for_byte() {
         .with(FifoChannel::new(10_000))
         .wait()
         .unwrap();
-    let python = python_has_zenoh().then(|| {
+    let python = glint_testkit::python_imports("zenoh").then(|| {
         let script =
             PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../examples/python/fleet_monitor.py");
         let mut child = Command::new("python3")

@@ -10,22 +10,9 @@ fn glintd() -> Command {
     Command::new(env!("CARGO_BIN_EXE_glintd"))
 }
 
-fn python_has_iceoryx2() -> bool {
-    Command::new("python3")
-        .args(["-c", "import iceoryx2"])
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
-
 #[test]
 fn python_subscriber_receives_consecutive_poses() {
-    if !python_has_iceoryx2() {
-        assert!(
-            std::env::var("CI").map_or(true, |v| v != "true"),
-            "python3 cannot import iceoryx2: .ci/run installs iceoryx2==0.10.0"
-        );
-        eprintln!("skipping: python3 cannot import iceoryx2 (pip install iceoryx2==0.10.0)");
+    if !glint_testkit::python_module("iceoryx2", "pip install iceoryx2==0.10.0") {
         return;
     }
     let out = std::env::temp_dir().join(format!("glint-python-{}", std::process::id()));

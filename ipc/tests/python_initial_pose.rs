@@ -11,14 +11,6 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use glint_ipc::{settings, Domain, Frame, InitialPose, InitialPoseSubscriber};
 
-fn python_has_iceoryx2() -> bool {
-    Command::new("python3")
-        .args(["-c", "import iceoryx2"])
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
-
 fn script() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../examples/python/glint_initial_pose.py")
 }
@@ -32,12 +24,7 @@ fn now_ns() -> u64 {
 
 #[test]
 fn python_sender_delivers_a_hint_or_says_no_daemon_runs() {
-    if !python_has_iceoryx2() {
-        assert!(
-            std::env::var("CI").map_or(true, |v| v != "true"),
-            "python3 cannot import iceoryx2: .ci/run installs iceoryx2==0.10.0"
-        );
-        eprintln!("skipping: python3 cannot import iceoryx2 (pip install iceoryx2==0.10.0)");
+    if !glint_testkit::python_module("iceoryx2", "pip install iceoryx2==0.10.0") {
         return;
     }
     let domain = Domain::new(&format!("test-python-ip-{}", std::process::id())).unwrap();

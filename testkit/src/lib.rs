@@ -1,10 +1,12 @@
 //! What Glint's tests and benches share, as a dev-dependency only: finding the real captures and
-//! public benchmarks in `../shared/data` beside the workspace, and one seeded random generator,
-//! so every test draws the same numbers on every machine without a dependency.
+//! public benchmarks in `../shared/data` beside the workspace, the Python modules and programs
+//! some tests drive, and one seeded random generator, so every test draws the same numbers on
+//! every machine without a dependency.
 
 use std::collections::HashSet;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
 use std::sync::Mutex;
 
 /// The folder of real data, relative to the workspace root, as messages name it.
@@ -16,8 +18,7 @@ const SHARED_DATA: &str = "../shared/data";
 /// group prints one line to stderr, so a run says once what it skipped rather than once per
 /// test. Under `CI=true` an absence panics instead: CI must run everything.
 pub fn shared_data(group: &str, name: &str) -> Option<PathBuf> {
-    let ci = std::env::var("CI").is_ok_and(|v| v == "true");
-    find(&workspace_root().join(SHARED_DATA), group, name, ci)
+    find(&workspace_root().join(SHARED_DATA), group, name, under_ci())
 }
 
 /// The workspace root: this crate sits one level below it, so the path holds from any crate's
@@ -49,6 +50,53 @@ fn find(dir: &Path, group: &str, name: &str, ci: bool) -> Option<PathBuf> {
         );
     }
     None
+}
+
+/// Whether `python3` imports `module`.
+pub fn python_imports(module: &str) -> bool {
+    let mut probe = Command::new("python3");
+    probe.args(["-c", &format!("import {module}")]);
+    succeeds(probe)
+}
+
+/// Whether a test that needs the Python module `module` can run: when `python3` cannot import
+/// it, one line on stderr says the test is skipped and how to `install` it, and under `CI=true`
+/// it panics instead (`.ci/run` installs every module the tests use).
+pub fn python_module(module: &str, install: &str) -> bool {
+    required(
+        python_imports(module),
+        &format!("python3 module {module}"),
+        install,
+        under_ci(),
+    )
+}
+
+/// Whether a test that needs `program` can run (`program --version` succeeds); when it cannot,
+/// as for [`python_module`].
+pub fn program(program: &str, install: &str) -> bool {
+    let mut probe = Command::new(program);
+    probe.arg("--version");
+    required(succeeds(probe), program, install, under_ci())
+}
+
+fn succeeds(mut probe: Command) -> bool {
+    probe
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+fn under_ci() -> bool {
+    std::env::var("CI").is_ok_and(|v| v == "true")
+}
+
+fn required(present: bool, what: &str, install: &str, ci: bool) -> bool {
+    if !present {
+        assert!(!ci, "{what} is missing ({install}); CI must run every test");
+        let _ = writeln!(std::io::stderr(), "skipped: {what} is missing ({install})");
+    }
+    present
 }
 
 /// Whether `group` skips for the first time in this process.
@@ -169,5 +217,14 @@ mod tests {
             find(here, "testkit", "Cargo.toml", true),
             Some(here.join("Cargo.toml"))
         );
+    }
+
+    #[test]
+    fn a_missing_tool_skips_outside_ci_and_fails_under_it() {
+        assert!(required(true, "python3 module present", "-", true));
+        assert!(!required(false, "python3 module absent", "-", false));
+        let under_ci = std::panic::catch_unwind(|| required(false, "chromium", "apt-get", true));
+        assert!(under_ci.is_err());
+        assert!(!python_imports("glint_no_such_module"));
     }
 }

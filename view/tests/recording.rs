@@ -39,40 +39,13 @@ fn scratch(name: &str) -> PathBuf {
     dir
 }
 
-/// Whether a tool is here; outside CI a missing one skips the test, under `CI=true` it fails.
-fn available(what: &str, mut probe: Command, install: &str) -> bool {
-    let ok = probe
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if !ok {
-        assert!(
-            std::env::var("CI").as_deref() != Ok("true"),
-            "{what} is missing: {install}"
-        );
-        eprintln!("skipped: {what} is missing ({install})");
-    }
-    ok
-}
-
 fn rerun_sdk() -> bool {
-    let mut probe = Command::new("python3");
-    probe.args(["-c", "import rerun"]);
-    available(
-        "the rerun SDK for python3",
-        probe,
-        "pip install -r examples/python/requirements.txt",
-    )
+    glint_testkit::python_module("rerun", "pip install -r examples/python/requirements.txt")
 }
 
 fn chromium() -> bool {
-    let mut chromium = Command::new("chromium");
-    chromium.arg("--version");
-    let mut driver = Command::new("chromedriver");
-    driver.arg("--version");
     let install = "apt-get install chromium chromium-driver";
-    available("chromium", chromium, install) && available("chromedriver", driver, install)
+    glint_testkit::program("chromium", install) && glint_testkit::program("chromedriver", install)
 }
 
 /// Stamps (ns) of a TUM trajectory's lines.
