@@ -344,7 +344,7 @@ impl Scene {
 
     fn refresh(&mut self) -> Result<()> {
         self.at(self.now_ns);
-        let cells: Vec<([f32; 3], [u8; 3])> = self
+        let (centres, colors): (Vec<[f32; 3]>, Vec<rerun::Color>) = self
             .cells
             .values()
             .map(|c| {
@@ -354,17 +354,14 @@ impl Scene {
                 } else {
                     f32::NAN
                 };
-                (c.sum.map(|s| s / n), colour::reflectivity(eta))
+                let [r, g, b] = colour::reflectivity(eta);
+                (c.sum.map(|s| s / n), rerun::Color::from_rgb(r, g, b))
             })
-            .collect();
+            .unzip();
         self.rec.log(
             "world/map",
-            &rerun::Points3D::new(cells.iter().map(|(p, _)| *p))
-                .with_colors(
-                    cells
-                        .iter()
-                        .map(|(_, c)| rerun::Color::from_rgb(c[0], c[1], c[2])),
-                )
+            &rerun::Points3D::new(centres.iter().copied())
+                .with_colors(colors.iter().copied())
                 .with_radii([rerun::Radius::new_scene_units(VOXEL_M * 0.4)]),
         )?;
         for (path, track) in [
@@ -380,12 +377,8 @@ impl Scene {
         let flat = |p: &[f32; 3]| [p[0], -p[1]];
         self.rec.log(
             "topdown/map",
-            &rerun::Points2D::new(cells.iter().map(|(p, _)| flat(p)))
-                .with_colors(
-                    cells
-                        .iter()
-                        .map(|(_, c)| rerun::Color::from_rgb(c[0], c[1], c[2])),
-                )
+            &rerun::Points2D::new(centres.iter().map(flat))
+                .with_colors(colors)
                 .with_radii([rerun::Radius::new_scene_units(VOXEL_M * 0.5)]),
         )?;
         if self.map_track.len() >= 2 {
