@@ -1,8 +1,9 @@
 /*
- * glint.h - C and C++ interface to Glint's poses (libglint).
+ * glint.h - C and C++ interface to Glint's poses and sweeps (libglint).
  *
  * glintd publishes the robot's pose and its own health over iceoryx2 0.10.0 shared memory, on
- * the services glint/<domain>/{odom,map,predicted,status}, and takes initial-pose hints on
+ * the services glint/<domain>/{odom,map,predicted,status}, each sweep's points on
+ * glint/<domain>/sweep, and takes initial-pose hints on
  * glint/<domain>/initial_pose; ipc/README.md in the Glint sources is
  * the contract (layouts, units, frames, flags, behaviour across daemon restarts). This header
  * mirrors its payload structs byte for byte: the static assertions below check sizes and offsets
@@ -20,8 +21,9 @@
  *    close. Different handles are independent: libglint keeps no global state of its own
  *    (iceoryx2 underneath reads its configuration file once per process).
  *  - Nothing blocks except the *_wait functions, which sleep on the event service glintd
- *    notifies after every message (no polling while connected), and glint_send_initial_pose
- *    (0.5 s, see there).
+ *    notifies after every message (no polling while connected), glint_sweep_subscriber_wait,
+ *    which polls (the sweep service has no event service; see there), and
+ *    glint_send_initial_pose (0.5 s, see there).
  *  - Strings are NUL-terminated ASCII. Domains are 1-64 characters from [A-Za-z0-9_-].
  */
 #ifndef GLINT_H
@@ -42,7 +44,8 @@ extern "C" {
 #define GLINT_NO_DATA 1
 /** Not an error: nothing arrived within the timeout (wait); the caller's struct is untouched. */
 #define GLINT_TIMEOUT 2
-/** A null pointer, an invalid domain or an unknown stream name. Retrying cannot help. */
+/** A null pointer, an invalid domain, an unknown stream name, or a sweep larger than the buffer
+ *  given for it (see glint_sweep_subscriber_take). Retrying the same call cannot help. */
 #define GLINT_ERR_INVALID_ARGUMENT (-1)
 /** The service does not exist: glintd is not running, runs with another domain, or uses another
  *  iceoryx2 root. The handle keeps trying to connect on each later call. */
@@ -149,6 +152,67 @@ GLINT_STATIC_ASSERT(offsetof(glint_status_v1, latency_p99_ms) == 68, status_late
 GLINT_STATIC_ASSERT(offsetof(glint_status_v1, flags) == 72, status_flags);
 GLINT_STATIC_ASSERT(offsetof(glint_status_v1, _pad0) == 76, status_pad0);
 
+/* ---- Sweep payloads (ipc/README.md, "Sweeps") ------------------------------------------- */
+
+/** Bits of glint_sweep_point_v1.label: what the front end chose the point as (several may be set;
+ *  none = not a feature). Bits 3-7 are reserved (written 0, to be ignored). */
+#define GLINT_POINT_EDGE 0x01u      /* a geometric corner or an intensity boundary */
+#define GLINT_POINT_PLANE 0x02u     /* a plane point */
+#define GLINT_POINT_INTENSITY 0x04u /* a strong reflectivity gradient */
+
+/** Points a sweep sample holds: no sweep glintd publishes has more. A buffer of this many
+ *  glint_sweep_point_v1 (3 MiB) fits any sweep. */
+#define GLINT_SWEEP_MAX_POINTS 131072
+
+/** How often glint_sweep_subscriber_wait looks for a new sweep, in milliseconds. */
+#define GLINT_SWEEP_POLL_INTERVAL_MS 5
+
+/** iceoryx2 type names of the sweep service's user header and slice elements. */
+#define GLINT_SWEEP_HEADER_TYPE_NAME "glint::SweepHeaderV1"
+#define GLINT_SWEEP_POINT_TYPE_NAME "glint::SweepPointV1"
+
+/** One return of a sweep (glint::SweepPointV1, 24 bytes, alignment 4). */
+typedef struct glint_sweep_point_v1 {
+    float position[3];      /*  0: x, y, z in base_link at the header's timestamp_ns, m */
+    float intensity;        /* 12: calibrated reflectivity (about 0..1); NaN where not calibrated */
+    int32_t time_offset_ns; /* 16: firing time - header.sensor_time_ns, ns (<= 0) */
+    uint16_t ring;          /* 20: laser ring, 0 = lowest beam */
+    uint8_t reflectivity;   /* 22: the sensor's raw byte: 0-100 diffuse, 101-255 retro-reflective */
+    uint8_t label;          /* 23: GLINT_POINT_* bits; 0 = not a feature */
+} glint_sweep_point_v1;
+
+/** A sweep's header (glint::SweepHeaderV1, 136 bytes, alignment 8). The points are deskewed to
+ *  timestamp_ns: the odom pose with the same stamp is where base_link was. */
+typedef struct glint_sweep_header_v1 {
+    uint64_t timestamp_ns;         /*   0: the sweep's last firing, on the poses' time base, ns */
+    uint64_t sensor_time_ns;       /*   8: the same instant on the sensor's clock, ns */
+    uint64_t sequence;             /*  16: +1 per sweep published; a gap = not published or lost */
+    uint32_t point_count;          /*  24: points in the sweep */
+    uint32_t flags;                /*  28: GLINT_STATUS_* bits of the sweep's odom pose */
+    double sensor_twist[6];        /*  32: deskewing twist, sensor frame: w (rad/s), v (m/s) */
+    double sensor_position[3];     /*  80: mounting base_link <- sensor: translation, m */
+    double sensor_orientation[4];  /* 104: mounting rotation, unit quaternion x, y, z, w */
+} glint_sweep_header_v1;
+
+GLINT_STATIC_ASSERT(sizeof(glint_sweep_point_v1) == 24, sweep_point_size);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_point_v1, position) == 0, sweep_point_position);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_point_v1, intensity) == 12, sweep_point_intensity);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_point_v1, time_offset_ns) == 16, sweep_point_time_offset);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_point_v1, ring) == 20, sweep_point_ring);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_point_v1, reflectivity) == 22, sweep_point_reflectivity);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_point_v1, label) == 23, sweep_point_label);
+
+GLINT_STATIC_ASSERT(sizeof(glint_sweep_header_v1) == 136, sweep_header_size);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_header_v1, timestamp_ns) == 0, sweep_header_timestamp_ns);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_header_v1, sensor_time_ns) == 8, sweep_header_sensor_time);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_header_v1, sequence) == 16, sweep_header_sequence);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_header_v1, point_count) == 24, sweep_header_point_count);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_header_v1, flags) == 28, sweep_header_flags);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_header_v1, sensor_twist) == 32, sweep_header_twist);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_header_v1, sensor_position) == 80, sweep_header_position);
+GLINT_STATIC_ASSERT(offsetof(glint_sweep_header_v1, sensor_orientation) == 104,
+                    sweep_header_orientation);
+
 /* ---- Pose subscriber ------------------------------------------------------------------- */
 
 /** Opaque handle on one pose stream of one domain. */
@@ -206,6 +270,51 @@ const char *glint_status_subscriber_last_error(const glint_status_subscriber *su
 
 /** Releases the handle; as glint_pose_subscriber_close. */
 int glint_status_subscriber_close(glint_status_subscriber *sub);
+
+/* ---- Sweep subscriber ------------------------------------------------------------------ */
+
+/** Opaque handle on glint/<domain>/sweep. */
+typedef struct glint_sweep_subscriber glint_sweep_subscriber;
+
+/** Subscribes to glint/<domain>/sweep (published when glintd runs with [ipc] sweeps = true, the
+ *  default); results and handle as glint_pose_subscriber_open: *out receives a handle whatever
+ *  the result (except when out is NULL), which connects on a later take/wait when glintd is not
+ *  up yet and outlives a glintd restart. Like every handle, used by one thread at a time. Read
+ *  last_error, and always close the handle. */
+int glint_sweep_subscriber_open(const char *domain, glint_sweep_subscriber **out);
+
+/** Copies the oldest unread sweep without blocking: its header into *header and its
+ *  header->point_count points into points[0 .. point_count-1] (the rest of the buffer is left
+ *  as it was). The caller owns both buffers; nothing is kept after the call returns. Returns
+ *  GLINT_OK, or GLINT_NO_DATA when nothing is unread (both buffers untouched). Up to 2 sweeps
+ *  queue; older ones are overwritten, seen as a gap in sequence.
+ *
+ *  capacity is how many glint_sweep_point_v1 fit in points; points may be NULL only when capacity is
+ *  0 (to read headers alone). A sweep with more points than capacity is consumed all the same:
+ *  the result is GLINT_ERR_INVALID_ARGUMENT, *header is filled (point_count says the size
+ *  needed, and last_error names it), the points buffer is untouched, and the next call returns
+ *  the next sweep. A buffer of GLINT_SWEEP_MAX_POINTS points never is too small.
+ *  GLINT_ERR_INVALID_ARGUMENT also for a NULL sub, header, or points with capacity > 0 (nothing
+ *  consumed, nothing written). */
+int glint_sweep_subscriber_take(glint_sweep_subscriber *sub, glint_sweep_header_v1 *header,
+                                glint_sweep_point_v1 *points, size_t capacity);
+
+/** As glint_sweep_subscriber_take, but waits for a sweep up to timeout_ms (then GLINT_TIMEOUT;
+ *  last_error says how long ago the last sweep came). The sweep service has no event service,
+ *  so this polls: it looks every GLINT_SWEEP_POLL_INTERVAL_MS (5 ms) and sleeps in between, which
+ *  adds up to 5 ms to a sweep's delivery. A signal does not end the wait early (never
+ *  GLINT_ERR_INTERRUPTED): keep timeout_ms short if the caller must react to one. While not
+ *  connected it retries the connection every 20 ms within the timeout. */
+int glint_sweep_subscriber_wait(glint_sweep_subscriber *sub, uint32_t timeout_ms,
+                                glint_sweep_header_v1 *header, glint_sweep_point_v1 *points,
+                                size_t capacity);
+
+/** Why the last call on sub did not return GLINT_OK ("" if it did). Never NULL; valid until the
+ *  next call on sub. */
+const char *glint_sweep_subscriber_last_error(const glint_sweep_subscriber *sub);
+
+/** Releases the handle; as glint_pose_subscriber_close. */
+int glint_sweep_subscriber_close(glint_sweep_subscriber *sub);
 
 /* ---- Initial-pose hint ------------------------------------------------------------------- */
 

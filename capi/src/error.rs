@@ -24,7 +24,8 @@ pub const GLINT_OK: c_int = 0;
 pub const GLINT_NO_DATA: c_int = 1;
 /// Not an error: the wait ended without a message; the caller's struct is untouched.
 pub const GLINT_TIMEOUT: c_int = 2;
-/// A null pointer, an invalid domain or an unknown stream name; retrying cannot help.
+/// A null pointer, an invalid domain, an unknown stream name, or a sweep buffer too small for the
+/// sweep; retrying the same call cannot help.
 pub const GLINT_ERR_INVALID_ARGUMENT: c_int = -1;
 /// The service does not exist: the daemon is not running, runs with another domain or another
 /// iceoryx2 root. The handle retries on its next call.
@@ -89,6 +90,21 @@ pub enum CapiError {
     /// The stream name is not one of the pose streams.
     #[error("unknown pose stream {0:?}: expected \"odom\", \"map\" or \"predicted\"")]
     UnknownStream(String),
+    /// The caller's point buffer is smaller than the sweep. The sweep is consumed all the same
+    /// (see [`crate::sweep`]), so the message says what size would have done.
+    #[error(
+        "sweep {sequence} has {needed} points but the buffer holds {capacity}: skipped, only its \
+         header was written; pass room for at least {needed} points (GLINT_SWEEP_MAX_POINTS fits \
+         any sweep)"
+    )]
+    BufferTooSmall {
+        /// The skipped sweep's `sequence`.
+        sequence: u64,
+        /// Its points.
+        needed: usize,
+        /// The `capacity` passed.
+        capacity: usize,
+    },
     /// The handle was opened with invalid arguments and can never connect.
     #[error("this handle was opened with invalid arguments ({0}); close it")]
     Unusable(String),
@@ -126,6 +142,7 @@ impl CapiError {
             | Self::NotUtf8 { .. }
             | Self::Domain { .. }
             | Self::UnknownStream(_)
+            | Self::BufferTooSmall { .. }
             | Self::Unusable(_) => GLINT_ERR_INVALID_ARGUMENT,
             Self::Disconnected { code, .. } => *code,
             Self::Subscribe(e) => subscribe_code(e),

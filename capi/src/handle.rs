@@ -1,6 +1,6 @@
-//! [`Handle`]: what a C caller holds — one subscription (pose stream or status) that connects,
-//! reconnects and remembers the message of its last call. Entirely safe Rust; `lib.rs` only
-//! turns pointers into references around it.
+//! [`Handle`]: what a C caller holds — one subscription (pose stream, status or sweeps) that
+//! connects, reconnects and remembers the message of its last call. Entirely safe Rust; `lib.rs`
+//! only turns pointers into references around it.
 //!
 //! Connection plan. A handle exists even when the daemon does not: opening fails with
 //! `GLINT_ERR_NOT_RUNNING` and leaves a disconnected handle that tries again on each later call
@@ -25,18 +25,25 @@ use crate::error::{CapiError, GLINT_NO_DATA, GLINT_OK};
 /// event service to sleep on, so a wait polls at this pace; once connected it sleeps on events.
 pub const RECONNECT_INTERVAL: Duration = Duration::from_millis(20);
 
-/// One kind of subscription: what it opens and what it receives. Implemented by the two
-/// glint-ipc subscribers so that one [`Handle`] serves both C handle types.
+/// One kind of subscription: what it opens. Implemented by the glint-ipc subscribers so that one
+/// [`Handle`] (connection, reconnection, messages) serves every C handle type; how messages reach
+/// the caller is the business of [`FixedSource`] or, for sweeps, of [`crate::sweep`].
 pub trait Source: Sized {
-    /// The payload copied into the caller's struct.
-    type Item: Copy;
     /// Which stream of the domain to open.
     type Stream: Copy;
-    /// What the messages are called in messages to the user (`pose`, `status`).
+    /// What the messages are called in messages to the user (`pose`, `status`, `sweep`).
     const NOUN: &'static str;
 
-    /// Opens the data and event services.
+    /// Opens the services.
     fn open(domain: &Domain, stream: Self::Stream) -> Result<Self, SubscribeError>;
+}
+
+/// A source whose messages are one fixed-size struct, copied whole into the caller's struct
+/// (poses, status). A sweep's size varies, so it is copied into a caller's buffer instead.
+pub trait FixedSource: Source {
+    /// The payload copied into the caller's struct.
+    type Item: Copy;
+
     /// The oldest unread message, without blocking.
     fn try_next(&self) -> Result<Option<Self::Item>, ReceiveError>;
     /// The newest message, discarding older unread ones, without blocking.
@@ -48,13 +55,17 @@ pub trait Source: Sized {
 }
 
 impl Source for PoseSubscriber {
-    type Item = Pose;
     type Stream = PoseStream;
     const NOUN: &'static str = "pose";
 
     fn open(domain: &Domain, stream: PoseStream) -> Result<Self, SubscribeError> {
         PoseSubscriber::open(domain, stream)
     }
+}
+
+impl FixedSource for PoseSubscriber {
+    type Item = Pose;
+
     fn try_next(&self) -> Result<Option<Pose>, ReceiveError> {
         PoseSubscriber::try_next(self)
     }
@@ -70,13 +81,17 @@ impl Source for PoseSubscriber {
 }
 
 impl Source for StatusSubscriber {
-    type Item = Status;
     type Stream = ();
     const NOUN: &'static str = "status";
 
     fn open(domain: &Domain, (): ()) -> Result<Self, SubscribeError> {
         StatusSubscriber::open(domain)
     }
+}
+
+impl FixedSource for StatusSubscriber {
+    type Item = Status;
+
     fn try_next(&self) -> Result<Option<Status>, ReceiveError> {
         StatusSubscriber::try_next(self)
     }
@@ -190,62 +205,29 @@ impl<S: Source> Handle<S> {
         self.message = CString::new(bytes).unwrap_or_default();
     }
 
-    /// The oldest unread message, without blocking.
-    pub fn take(&mut self) -> Result<Received<S::Item>, CapiError> {
-        let item = self.connect()?.try_next()?;
-        Ok(self.hand_out(item, Received::NoData))
-    }
-
-    /// The newest message, discarding older unread ones, without blocking.
-    pub fn take_latest(&mut self) -> Result<Received<S::Item>, CapiError> {
-        let item = self.connect()?.try_latest()?;
-        Ok(self.hand_out(item, Received::NoData))
-    }
-
-    /// The oldest unread message, sleeping until one arrives or `timeout` passes. Connected, it
-    /// sleeps on the event service the daemon notifies; disconnected, it retries the connection
-    /// every [`RECONNECT_INTERVAL`] and then waits on events for the rest of the time.
-    pub fn wait(&mut self, timeout: Duration) -> Result<Received<S::Item>, CapiError> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            // Connect first and borrow the port afterwards, so that the retry branch may use
-            // `self` again.
-            let connected = self.connect().map(|_| ());
-            match connected {
-                Ok(()) => {
-                    let remaining = deadline.saturating_duration_since(Instant::now());
-                    let item = self.connect()?.wait_next(remaining)?;
-                    return Ok(self.hand_out(item, Received::Timeout));
-                }
-                Err(e) if self.is_retryable(&e) => {
-                    let now = Instant::now();
-                    if now >= deadline {
-                        return Err(e);
-                    }
-                    std::thread::sleep(self.next_attempt.min(deadline) - now);
-                }
-                Err(e) => return Err(e),
-            }
+    /// While disconnected within a wait: sleeps until the next connection attempt is due, or
+    /// hands `e` back once `deadline` has passed or when retrying cannot help.
+    pub(crate) fn await_reconnect(&self, e: CapiError, deadline: Instant) -> Result<(), CapiError> {
+        let now = Instant::now();
+        if !self.is_retryable(&e) || now >= deadline {
+            return Err(e);
         }
+        std::thread::sleep(self.next_attempt.min(deadline) - now);
+        Ok(())
     }
 
     fn is_retryable(&self, e: &CapiError) -> bool {
         self.target.is_ok() && matches!(e, CapiError::Subscribe(_) | CapiError::Disconnected { .. })
     }
 
-    fn hand_out(&mut self, item: Option<S::Item>, none: Received<S::Item>) -> Received<S::Item> {
-        match item {
-            Some(item) => {
-                self.last = Some((S::sequence(&item), Instant::now()));
-                Received::Message(item)
-            }
-            None => none,
-        }
+    /// Notes a message handed to the caller, for the timeout message.
+    pub(crate) fn delivered(&mut self, sequence: u64) {
+        self.last = Some((sequence, Instant::now()));
     }
 
     /// The connection, made now if there is none and the last attempt is old enough; a retry
     /// that comes too soon repeats the last attempt's reason instead of creating another node.
-    fn connect(&mut self) -> Result<&S, CapiError> {
+    pub(crate) fn connect(&mut self) -> Result<&S, CapiError> {
         let target = self
             .target
             .as_ref()
@@ -295,5 +277,49 @@ impl<S: Source> Handle<S> {
             (Some(_), None) => text.push_str("; none received yet"),
         }
         text
+    }
+}
+
+impl<S: FixedSource> Handle<S> {
+    /// The oldest unread message, without blocking.
+    pub fn take(&mut self) -> Result<Received<S::Item>, CapiError> {
+        let item = self.connect()?.try_next()?;
+        Ok(self.hand_out(item, Received::NoData))
+    }
+
+    /// The newest message, discarding older unread ones, without blocking.
+    pub fn take_latest(&mut self) -> Result<Received<S::Item>, CapiError> {
+        let item = self.connect()?.try_latest()?;
+        Ok(self.hand_out(item, Received::NoData))
+    }
+
+    /// The oldest unread message, sleeping until one arrives or `timeout` passes. Connected, it
+    /// sleeps on the event service the daemon notifies; disconnected, it retries the connection
+    /// every [`RECONNECT_INTERVAL`] and then waits on events for the rest of the time.
+    pub fn wait(&mut self, timeout: Duration) -> Result<Received<S::Item>, CapiError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            // Connect first and borrow the port afterwards, so that the retry branch may use
+            // `self` again.
+            let connected = self.connect().map(|_| ());
+            match connected {
+                Ok(()) => {
+                    let remaining = deadline.saturating_duration_since(Instant::now());
+                    let item = self.connect()?.wait_next(remaining)?;
+                    return Ok(self.hand_out(item, Received::Timeout));
+                }
+                Err(e) => self.await_reconnect(e, deadline)?,
+            }
+        }
+    }
+
+    fn hand_out(&mut self, item: Option<S::Item>, none: Received<S::Item>) -> Received<S::Item> {
+        match item {
+            Some(item) => {
+                self.delivered(S::sequence(&item));
+                Received::Message(item)
+            }
+            None => none,
+        }
     }
 }

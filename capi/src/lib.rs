@@ -1,18 +1,20 @@
-//! libglint: Glint's C interface. C and C++ controllers subscribe to `glintd`'s poses and
-//! status, and send it initial-pose hints, over iceoryx2 (exactly 0.10.0, through glint-ipc)
-//! with the functions declared in `include/glint.h`.
+//! libglint: Glint's C interface. C and C++ controllers subscribe to `glintd`'s poses, status
+//! and sweeps, and send it initial-pose hints, over iceoryx2 (exactly 0.10.0, through
+//! glint-ipc) with the functions declared in `include/glint.h`.
 //!
 //! This file is the FFI boundary and the only place with `unsafe`: it turns C pointers into
 //! references, catches every panic before it can unwind into C, and turns results into codes and
 //! per-handle messages. The logic lives in safe Rust: [`handle`] (connection, reconnection,
-//! messages) and [`error`] (codes). The payload structs are glint-ipc's own `#[repr(C)]`
-//! [`Pose`] and [`Status`], so the bytes copied to C are the bytes on the wire.
+//! messages), [`sweep`] (copying sweeps into a caller's buffer) and [`error`] (codes). The
+//! payload structs are glint-ipc's own `#[repr(C)]` [`Pose`], [`Status`], [`SweepHeader`] and
+//! [`SweepPoint`], so the bytes copied to C are the bytes on the wire.
 //!
 //! No global state: everything a call needs is in the handle the caller passes, so handles are
 //! independent and a handle may move between threads (one thread at a time).
 
 pub mod error;
 pub mod handle;
+pub mod sweep;
 
 use core::ffi::{c_char, c_int, CStr};
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -20,19 +22,22 @@ use std::time::Duration;
 
 use glint_ipc::{
     send_initial_pose, Domain, InitialPose, Pose, PoseStream, PoseSubscriber, Status,
-    StatusSubscriber,
+    StatusSubscriber, SweepHeader, SweepPoint, SweepSubscriber,
 };
 
 use crate::error::{
     code_name, CapiError, GLINT_ERR_INTERNAL, GLINT_ERR_INVALID_ARGUMENT, GLINT_NO_DATA, GLINT_OK,
     GLINT_TIMEOUT,
 };
-use crate::handle::{Handle, Received, Source};
+use crate::handle::{FixedSource, Handle, Received, Source};
+use crate::sweep::SweepBuffer;
 
 /// `glint_pose_subscriber` in C: an opaque handle on one pose stream.
 pub type PoseHandle = Handle<PoseSubscriber>;
 /// `glint_status_subscriber` in C: an opaque handle on the status stream.
 pub type StatusHandle = Handle<StatusSubscriber>;
+/// `glint_sweep_subscriber` in C: an opaque handle on a domain's sweeps.
+pub type SweepHandle = Handle<SweepSubscriber>;
 
 /// What C sees when a null handle is asked for its message.
 const NULL_HANDLE_MESSAGE: &CStr = c"the handle is a null pointer";
@@ -106,41 +111,134 @@ unsafe fn open_into<S: Source>(
     }
 }
 
-/// Runs one receiving call on a handle and copies a message into `out`.
+/// Runs one receiving call on a handle: a null handle is refused, a panic caught, and the
+/// outcome becomes the code and the handle's message.
 ///
 /// # Safety
 /// `handle` is null or a live handle from the matching `open` not used by another thread during
-/// the call; `out` is null or points to writable memory for one `S::Item` (any alignment).
-unsafe fn receive<S: Source>(
+/// the call.
+unsafe fn on_handle<S: Source>(
     handle: *mut Handle<S>,
-    out: *mut S::Item,
-    call: impl FnOnce(&mut Handle<S>) -> Result<Received<S::Item>, CapiError>,
+    call: impl FnOnce(&mut Handle<S>) -> Result<Received<()>, CapiError>,
 ) -> c_int {
     // SAFETY: null or live and unshared during the call, by the caller's contract above
     // (glint.h: "a handle is used by one thread at a time, and not after close").
     let Some(handle) = (unsafe { handle.as_mut() }) else {
         return GLINT_ERR_INVALID_ARGUMENT;
     };
-    let result = guarded(|| {
-        if out.is_null() {
-            return Err(CapiError::NullArgument { what: "out" });
-        }
-        match call(handle)? {
-            Received::Message(item) => {
-                // SAFETY: non-null checked above; the caller provides room for one item, and
-                // `write_unaligned` asks nothing of its alignment.
-                unsafe { out.write_unaligned(item) };
-                Ok(GLINT_OK)
-            }
-            Received::NoData => Ok(GLINT_NO_DATA),
-            Received::Timeout => Ok(GLINT_TIMEOUT),
-        }
+    let result = guarded(|| match call(handle)? {
+        Received::Message(()) => Ok(GLINT_OK),
+        Received::NoData => Ok(GLINT_NO_DATA),
+        Received::Timeout => Ok(GLINT_TIMEOUT),
     })
     .unwrap_or_else(|panic| Err(CapiError::Panic(panic)));
     let code = result.as_ref().map_or_else(CapiError::code, |c| *c);
     // Recording a message allocates; should even that panic, the code still gets through.
     let _ = guarded(|| handle.record(result.as_ref().copied()));
     code
+}
+
+/// Runs one receiving call on a handle and copies a message into `out`.
+///
+/// # Safety
+/// `handle` is null or a live handle from the matching `open` not used by another thread during
+/// the call; `out` is null or points to writable memory for one `S::Item` (any alignment).
+unsafe fn receive<S: FixedSource>(
+    handle: *mut Handle<S>,
+    out: *mut S::Item,
+    call: impl FnOnce(&mut Handle<S>) -> Result<Received<S::Item>, CapiError>,
+) -> c_int {
+    let copy = |handle: &mut Handle<S>| {
+        if out.is_null() {
+            return Err(CapiError::NullArgument { what: "out" });
+        }
+        Ok(match call(handle)? {
+            Received::Message(item) => {
+                // SAFETY: non-null checked above; the caller provides room for one item, and
+                // `write_unaligned` asks nothing of its alignment.
+                unsafe { out.write_unaligned(item) };
+                Received::Message(())
+            }
+            Received::NoData => Received::NoData,
+            Received::Timeout => Received::Timeout,
+        })
+    };
+    // SAFETY: the handle contract is this function's own, passed on unchanged.
+    unsafe { on_handle(handle, copy) }
+}
+
+/// The caller's sweep buffers: `header` non-null, `points` non-null unless `capacity` is 0
+/// (checked in [`receive_sweep`], the only place that makes one).
+struct CallerSweep {
+    header: *mut SweepHeader,
+    points: *mut SweepPoint,
+    capacity: usize,
+}
+
+impl SweepBuffer for CallerSweep {
+    fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    fn fill(&mut self, header: &SweepHeader, points: &[SweepPoint]) {
+        // The safe side never passes more; were it ever to, a panic (caught) beats an overflow.
+        assert!(
+            points.len() <= self.capacity,
+            "{} points for a buffer of {}",
+            points.len(),
+            self.capacity
+        );
+        // SAFETY: `header` is non-null (see the struct) and room for one header (the caller's
+        // contract); `write_unaligned` asks nothing of its alignment.
+        unsafe { self.header.write_unaligned(*header) };
+        if points.is_empty() {
+            return;
+        }
+        // SAFETY: `points` is non-null when `capacity` > 0 (see the struct), and writable for
+        // `capacity` points (the caller's contract), at least `points.len()` (asserted above).
+        // The source is the sample in shared memory, which the caller cannot have been handed,
+        // so the two do not overlap; copying bytes asks nothing of the destination's alignment.
+        unsafe {
+            core::ptr::copy_nonoverlapping(
+                points.as_ptr().cast::<u8>(),
+                self.points.cast::<u8>(),
+                core::mem::size_of_val(points),
+            );
+        }
+    }
+}
+
+/// Runs one receiving call on a sweep handle, copying the sweep into the caller's buffers.
+///
+/// # Safety
+/// `handle` is null or a live sweep handle not used by another thread during the call; `header`
+/// is null or writable for one `glint_sweep_header_v1`; `points` is null or writable for `capacity`
+/// `glint_sweep_point_v1`s (any alignment, for both).
+unsafe fn receive_sweep(
+    handle: *mut SweepHandle,
+    header: *mut SweepHeader,
+    points: *mut SweepPoint,
+    capacity: usize,
+    call: impl FnOnce(&mut SweepHandle, &mut CallerSweep) -> Result<Received<()>, CapiError>,
+) -> c_int {
+    let copy = |handle: &mut SweepHandle| {
+        if header.is_null() {
+            return Err(CapiError::NullArgument { what: "header" });
+        }
+        // NULL with capacity 0 is allowed: a caller that only wants the headers.
+        if points.is_null() && capacity > 0 {
+            return Err(CapiError::NullArgument { what: "points" });
+        }
+        let mut out = CallerSweep {
+            header,
+            points,
+            capacity,
+        };
+        call(handle, &mut out)
+    };
+    // SAFETY: the handle contract is this function's own, passed on unchanged; the buffers'
+    // are checked in `copy` and kept by `CallerSweep`.
+    unsafe { on_handle(handle, copy) }
 }
 
 /// The handle's last message.
@@ -316,6 +414,81 @@ pub unsafe extern "C" fn glint_status_subscriber_last_error(
 /// `sub` is null or a live handle, not used after this call.
 #[no_mangle]
 pub unsafe extern "C" fn glint_status_subscriber_close(sub: *mut StatusHandle) -> c_int {
+    // SAFETY: this function's contract is `close`'s.
+    unsafe { close(sub) }
+}
+
+/// See `glint_sweep_subscriber_open` in glint.h.
+///
+/// # Safety
+/// `domain` is null or a NUL-terminated string; `out` is null or writable.
+#[no_mangle]
+pub unsafe extern "C" fn glint_sweep_subscriber_open(
+    domain: *const c_char,
+    out: *mut *mut SweepHandle,
+) -> c_int {
+    // SAFETY: the string and `out` contracts are this function's own, passed on unchanged.
+    unsafe {
+        open_into(out, || {
+            Handle::open(domain_arg(c_str(domain, "domain")), Ok(()), "sweep")
+        })
+    }
+}
+
+/// See `glint_sweep_subscriber_take` in glint.h.
+///
+/// # Safety
+/// `sub` is null or a live, unshared handle; `header` is null or room for one
+/// `glint_sweep_header_v1`; `points` is null or room for `capacity` `glint_sweep_point_v1`s.
+#[no_mangle]
+pub unsafe extern "C" fn glint_sweep_subscriber_take(
+    sub: *mut SweepHandle,
+    header: *mut SweepHeader,
+    points: *mut SweepPoint,
+    capacity: usize,
+) -> c_int {
+    // SAFETY: this function's contract is `receive_sweep`'s.
+    unsafe { receive_sweep(sub, header, points, capacity, |h, out| h.take_into(out)) }
+}
+
+/// See `glint_sweep_subscriber_wait` in glint.h.
+///
+/// # Safety
+/// As [`glint_sweep_subscriber_take`].
+#[no_mangle]
+pub unsafe extern "C" fn glint_sweep_subscriber_wait(
+    sub: *mut SweepHandle,
+    timeout_ms: u32,
+    header: *mut SweepHeader,
+    points: *mut SweepPoint,
+    capacity: usize,
+) -> c_int {
+    // SAFETY: this function's contract is `receive_sweep`'s.
+    unsafe {
+        receive_sweep(sub, header, points, capacity, |h, out| {
+            h.wait_into(millis(timeout_ms), out)
+        })
+    }
+}
+
+/// See `glint_sweep_subscriber_last_error` in glint.h.
+///
+/// # Safety
+/// `sub` is null or a live handle not used by another thread meanwhile.
+#[no_mangle]
+pub unsafe extern "C" fn glint_sweep_subscriber_last_error(
+    sub: *const SweepHandle,
+) -> *const c_char {
+    // SAFETY: this function's contract is `message_of`'s.
+    unsafe { message_of(sub) }
+}
+
+/// See `glint_sweep_subscriber_close` in glint.h.
+///
+/// # Safety
+/// `sub` is null or a live handle, not used after this call.
+#[no_mangle]
+pub unsafe extern "C" fn glint_sweep_subscriber_close(sub: *mut SweepHandle) -> c_int {
     // SAFETY: this function's contract is `close`'s.
     unsafe { close(sub) }
 }
