@@ -217,6 +217,9 @@ pub struct IpcConfig {
     pub predicted_rate_hz: f64,
     /// Publish every sweep's returns, deskewed in `base_link`, on `glint/<domain>/sweep`.
     pub sweeps: bool,
+    /// Publish the map as keyframes on `glint/<domain>/map_update` (with loop closure or a
+    /// saved map to localise in).
+    pub map_updates: bool,
 }
 
 impl Default for IpcConfig {
@@ -226,6 +229,7 @@ impl Default for IpcConfig {
             domain: "default".into(),
             predicted_rate_hz: 50.0,
             sweeps: true,
+            map_updates: true,
         }
     }
 }

@@ -170,6 +170,7 @@ pub fn run(args: ReplayArgs) -> Result<()> {
             domain: args.domain.clone(),
             predicted_rate_hz: args.predicted_rate,
             sweeps: true,
+            map_updates: true,
         }),
         trajectory: args.trajectory.clone(),
         trajectory_max_bytes: None,

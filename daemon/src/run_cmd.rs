@@ -103,6 +103,7 @@ pub fn run(args: RunArgs) -> Result<()> {
             domain: config.ipc.domain.clone(),
             predicted_rate_hz: config.ipc.predicted_rate_hz,
             sweeps: config.ipc.sweeps,
+            map_updates: config.ipc.map_updates,
         }),
         trajectory: config.output.trajectory.clone(),
         trajectory_max_bytes: Some(config.output.trajectory_max_bytes),

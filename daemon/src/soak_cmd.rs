@@ -336,6 +336,7 @@ pub fn run(args: SoakArgs) -> Result<()> {
             domain: args.domain.clone(),
             predicted_rate_hz: 0.0,
             sweeps: true,
+            map_updates: true,
         }),
         trajectory: None,
         trajectory_max_bytes: None,

@@ -16,10 +16,12 @@
 //! | [`publisher`] | [`PosePublisher`] (the daemon's side) |
 //! | [`subscriber`] | [`PoseSubscriber`], [`StatusSubscriber`] (the consumers' side) |
 //! | [`sweep`] | the `sweep` service: [`SweepPoint`], [`SweepHeader`], [`SweepPublisher`], [`SweepSubscriber`] |
+//! | [`map_update`] | the `map_update` service: [`MapUpdateHeader`], its records, [`MapUpdatePublisher`], [`MapUpdateSubscriber`] |
 //! | [`initial_pose`] | hints, roles reversed: [`InitialPoseSubscriber`] (the daemon's side), [`InitialPosePublisher`], [`send_initial_pose`] |
 
 pub mod bytes;
 pub mod initial_pose;
+pub mod map_update;
 pub mod names;
 pub mod payload;
 pub mod publisher;
@@ -31,6 +33,10 @@ pub use bytes::BytesError;
 pub use initial_pose::{
     send_initial_pose, InitialPoseCreateError, InitialPoseOpenError, InitialPosePublisher,
     InitialPoseSendError, InitialPoseSubscriber, SendInitialPoseError,
+};
+pub use map_update::{
+    KeyframePose, MapContent, MapEdge, MapPoint, MapRecord, MapUpdate, MapUpdateFlags,
+    MapUpdateHeader, MapUpdateKind, MapUpdatePublishError, MapUpdatePublisher, MapUpdateSubscriber,
 };
 pub use names::{Domain, DomainError, PoseStream, Stream};
 pub use payload::{Frame, InitialPose, InitialPoseError, Pose, Status, StatusFlags};

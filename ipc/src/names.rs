@@ -126,6 +126,9 @@ pub enum Stream {
     /// `sweep`: every sweep's points in `base_link`, [`SweepPoint`](crate::SweepPoint)s under a
     /// [`SweepHeader`](crate::SweepHeader).
     Sweep,
+    /// `map_update`: the map as keyframes — points, poses and loop edges — under a
+    /// [`MapUpdateHeader`](crate::MapUpdateHeader).
+    MapUpdate,
 }
 
 impl Stream {
@@ -146,6 +149,7 @@ impl Stream {
             Self::Status => "status",
             Self::InitialPose => "initial_pose",
             Self::Sweep => "sweep",
+            Self::MapUpdate => "map_update",
         }
     }
 }
@@ -175,6 +179,10 @@ mod tests {
         );
         assert_eq!(d.service_name(Stream::Status), "glint/agv-07_a/status");
         assert_eq!(d.service_name(Stream::Sweep), "glint/agv-07_a/sweep");
+        assert_eq!(
+            d.service_name(Stream::MapUpdate),
+            "glint/agv-07_a/map_update"
+        );
         assert_eq!(
             d.service_name(Stream::InitialPose),
             "glint/agv-07_a/initial_pose"

@@ -92,3 +92,21 @@ pub const SWEEP_MAX_BORROWED_SAMPLES: usize = 1;
 /// [`SWEEP_HISTORY_SIZE`] and the publisher's one loan, this bounds the service's samples, and
 /// so its shared memory (see the README for the measured size).
 pub const SWEEP_MAX_SUBSCRIBERS: usize = 4;
+
+/// Payload bytes a `map_update` sample holds: 4,096 map points, 910 keyframe poses or 8,192
+/// edges; a larger message goes in several parts. 64 KiB each.
+pub const MAP_UPDATE_MAX_BYTES: usize = 64 << 10;
+
+/// `map_update` messages each subscriber queues: 32 parts, 2 MiB. The daemon sends a new
+/// subscriber's map at [`MAP_UPDATE_REPLAY_RATE`], so a consumer that reads every 100 ms loses
+/// none.
+pub const MAP_UPDATE_SUBSCRIBER_BUFFER_SIZE: usize = 32;
+
+/// Parts per second, at most, of the whole map sent again for a new subscriber: 160, 10 MiB/s
+/// at most, half a subscriber's buffer per 100 ms.
+pub const MAP_UPDATE_REPLAY_RATE: usize = 160;
+
+/// `map_update` subscribers: a viewer, a planner, a recorder and one to spare. With the
+/// buffer above and the publisher's one loan this bounds the service's samples: 4 × (32 + 1) +
+/// 1 = 133 of 64 KiB, 8.3 MiB of address space, touched only as written.
+pub const MAP_UPDATE_MAX_SUBSCRIBERS: usize = 4;

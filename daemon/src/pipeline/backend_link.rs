@@ -20,6 +20,7 @@ use glint_ipc::InitialPoseSubscriber;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 
 use super::health::{recv_beating, send_beating, Heartbeats, Stage};
+use super::map_updates::MapOutlet;
 use super::SlamSummary;
 
 /// Keyframes allowed to wait for the back end (live: more are dropped, counted).
@@ -237,10 +238,12 @@ pub(super) fn run_localiser(
 
 /// The back end's thread: adds each keyframe to the pose graph (closing loops, saving the site
 /// map now and then when live) and answers with the correction, until the odometry is gone; then
-/// the back end itself and its report.
+/// the back end itself and its report. Each keyframe and each optimisation also goes to `map`,
+/// after the answer.
 pub(super) fn run_backend(
     config: &BackEndConfig,
     saver: Option<&MapSaver>,
+    mut map: Option<MapOutlet>,
     input: &Receiver<(u64, Keyframe)>,
     output: &Sender<Correction>,
     heartbeats: &Heartbeats,
@@ -273,6 +276,12 @@ pub(super) fn run_backend(
         if output.send(Correction::slam(backend.correction())).is_err() {
             break;
         }
+        if let Some(map) = map.as_mut() {
+            map.keyframe_added(&backend, outcome.index);
+            if outcome.optimization.is_some() {
+                map.optimised(&backend);
+            }
+        }
         // Periodic saves happen here, between keyframes, off the pose path: the odometry never
         // waits for the back end live.
         if let Some(s) = saver.filter(|s| s.every.is_some_and(|e| saved.elapsed() >= e)) {
@@ -288,6 +297,9 @@ pub(super) fn run_backend(
     let start = Instant::now();
     if backend.finish().is_some() {
         report.optimize_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        if let Some(map) = map.as_mut() {
+            map.optimised(&backend);
+        }
     }
     report.stats = backend.stats();
     (backend, report)

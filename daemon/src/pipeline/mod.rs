@@ -27,6 +27,7 @@
 mod backend_link;
 mod front_end;
 mod health;
+mod map_updates;
 mod odometry;
 mod placement;
 mod receive;
@@ -68,6 +69,7 @@ use backend_link::{
 };
 use front_end::{run_front_end, Featured};
 use health::Heartbeats;
+use map_updates::{run_map_publisher, HeldMap, MapEvent, MapOutlet, MAP_EVENT_QUEUE};
 use odometry::{run_odometry, Estimated, OdometryOutcome};
 use receive::{read_payloads, receive_live, Arrival, ReceiveCounters};
 use sink::Sink;
@@ -143,6 +145,9 @@ pub struct PublishOptions {
     pub predicted_rate_hz: f64,
     /// Publish every sweep's returns on the `sweep` service too.
     pub sweeps: bool,
+    /// Publish the map as keyframes on the `map_update` service (when the back end or the
+    /// localiser runs).
+    pub map_updates: bool,
 }
 
 /// Everything a run needs.
@@ -467,6 +472,28 @@ pub fn run(mut options: Options) -> Result<Summary> {
         _ => Lockstep::NextKeyframe,
     };
     let backend_config = options.backend.clone().unwrap_or_default();
+    // The `map_update` service, on a thread of its own, fed by the back end (mapping) or
+    // given the saved map (localising).
+    let map_service = match &options.publish {
+        Some(p)
+            if p.map_updates
+                && (options.backend.is_some() || options.site_map.localise.is_some()) =>
+        {
+            let domain = glint_ipc::Domain::new(&p.domain)
+                .map_err(|e| anyhow!("domain {:?}: {e}", p.domain))?;
+            let held = match &options.site_map.localise {
+                Some(map) => HeldMap::saved(map),
+                None => HeldMap::mapping(glint_driver::udp::host_now_ns()),
+            };
+            let (tx, rx) = bounded::<MapEvent>(MAP_EVENT_QUEUE);
+            let handle = spawn("glint-map", move || {
+                run_map_publisher(&domain, held, &rx);
+                Ok(())
+            })?;
+            Some((tx, handle))
+        }
+        _ => None,
+    };
     let (keyframe_tx, keyframe_rx) = bounded::<(u64, Keyframe)>(BACK_END_QUEUE);
     let (reply_tx, reply_rx) = bounded::<Correction>(BACK_END_QUEUE);
     let link = BackEndLink::new(keyframe_tx, reply_rx, lockstep);
@@ -515,10 +542,16 @@ pub fn run(mut options: Options) -> Result<Summary> {
             (None, Some(config)) => {
                 let heartbeats = heartbeats.clone();
                 let saver = saver.clone();
+                // The back end's world is the first sensor pose; the `map` stream's frame, its
+                // `base_link` (see `Sink`).
+                let outlet = map_service
+                    .as_ref()
+                    .map(|(tx, _)| MapOutlet::new(tx.clone(), options.base_from_sensor));
                 let handle = spawn("glint-backend", move || {
                     Ok(run_backend(
                         &config,
                         saver.as_ref(),
+                        outlet,
                         &keyframe_rx,
                         &reply_tx,
                         &heartbeats,
@@ -609,6 +642,11 @@ pub fn run(mut options: Options) -> Result<Summary> {
         keyframes_dropped,
     } = join(odometry, "odometry")?;
     let backend = backend.map(|b| join(b, "back end")).transpose()?;
+    if let Some((events, handle)) = map_service {
+        // The back end's copy is gone with it; this closes the service's input.
+        drop(events);
+        join(handle, "map service")?;
+    }
     let extension = localiser
         .map(|l| join(l, "localiser"))
         .transpose()?
