@@ -92,8 +92,8 @@ fn main() -> Result<()> {
     scene.finish();
     let counts = scene.counts();
     eprintln!(
-        "glint-view: {} sweeps, {} odom and {} map poses, {} status messages logged",
-        counts.sweeps, counts.odom, counts.map, counts.status
+        "glint-view: {} sweeps, {} odom and {} map poses, {} status and {} map_update messages logged",
+        counts.sweeps, counts.odom, counts.map, counts.status, counts.map_updates
     );
     recording
         .flush_with_timeout(Duration::from_secs(10))

@@ -6,14 +6,21 @@
 //!   `base_link`, coloured by calibrated reflectivity, and `world/robot/features` its edge, plane
 //!   and intensity points by class;
 //! - `world/trajectory/{map,odom}`: the paths in the two frames;
-//! - `world/map`: the sweeps' returns gathered in the `map` frame on a voxel grid around the
-//!   robot, refreshed every [`REFRESH_NS`] of sensor time; `topdown/` the same seen from above;
+//! - `world/map`: the map on a voxel grid, refreshed every [`REFRESH_NS`] of sensor time: the
+//!   daemon's keyframes placed at their latest poses when it publishes `map_update` (so a loop
+//!   closure straightens it), else the sweeps' returns gathered at tracked `map` poses around the
+//!   robot; `topdown/` the same seen from above;
+//! - `world/keyframes`: the keyframes' positions, `world/keyframes/odometry` the chain joining
+//!   them and `world/keyframes/loops` the loop closures, as lines;
 //! - `tracking/state`: a line whenever the `map` pose's state changes; `metrics/*`: time series.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 
 use anyhow::Result;
-use glint_ipc::{PointLabel, Pose, PoseStream, Status, StatusFlags, SweepHeader, SweepPoint};
+use glint_ipc::{
+    KeyframePose, MapContent, MapEdge, MapPoint, MapUpdate, PointLabel, Pose, PoseStream, Status,
+    StatusFlags, SweepHeader, SweepPoint,
+};
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion};
 use rerun::RecordingStream;
 
@@ -39,6 +46,7 @@ pub struct Counts {
     pub odom: u64,
     pub map: u64,
     pub status: u64,
+    pub map_updates: u64,
 }
 
 /// One reflectivity cell of the gathered map: the running mean of its returns.
@@ -50,13 +58,112 @@ struct Cell {
     count: u32,
 }
 
+/// The daemon's map as keyframes (`map_update`): each keyframe's cloud in its sensor frame and
+/// its latest pose.
+#[derive(Debug, Default)]
+struct KeyframeMap {
+    map_id: u64,
+    poses: BTreeMap<u32, KeyframePose>,
+    clouds: HashMap<u32, Vec<MapPoint>>,
+    /// Clouds whose last part has not arrived.
+    partial: HashMap<u32, Vec<MapPoint>>,
+    edges: Vec<MapEdge>,
+    /// Changed since it was last logged.
+    changed: bool,
+}
+
+impl KeyframeMap {
+    fn take(&mut self, update: MapUpdate) {
+        let h = update.header;
+        if h.map_id != self.map_id {
+            // Another map (the daemon restarted): what was held belongs to the old one.
+            *self = Self {
+                map_id: h.map_id,
+                ..Self::default()
+            };
+        }
+        match update.content {
+            MapContent::Cloud(points) => {
+                let held = self.partial.entry(h.keyframe).or_default();
+                if h.part == 0 {
+                    held.clear();
+                }
+                held.extend(points);
+                if h.part + 1 >= h.parts {
+                    let whole = self.partial.remove(&h.keyframe).unwrap_or_default();
+                    self.clouds.insert(h.keyframe, whole);
+                }
+            }
+            MapContent::KeyframePoses(poses) => {
+                for p in poses {
+                    self.poses.insert(p.keyframe, p);
+                }
+            }
+            MapContent::Edges(edges) => self.edges = edges,
+            MapContent::Unreadable => return,
+        }
+        self.changed = true;
+    }
+
+    fn position(&self, keyframe: u32) -> Option<[f32; 3]> {
+        self.poses
+            .get(&keyframe)
+            .map(|p| p.position.map(|v| v as f32))
+    }
+
+    /// Every cloud at its keyframe's pose, on the voxel grid.
+    fn cells(&self) -> HashMap<[i32; 3], Cell> {
+        let mut cells = HashMap::new();
+        for (k, cloud) in &self.clouds {
+            let Some(p) = self.poses.get(k) else { continue };
+            let pose = isometry(p.position, p.orientation);
+            for c in cloud {
+                let local = Point3::from(c.position.map(f64::from));
+                add_to_cell(&mut cells, &(pose * local), c.intensity);
+            }
+        }
+        cells
+    }
+}
+
+/// A position and an `[x, y, z, w]` quaternion (as every Glint payload has them) as a pose.
+fn isometry(position: [f64; 3], [x, y, z, w]: [f64; 4]) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(position[0], position[1], position[2]),
+        UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
+    )
+}
+
+/// Adds a return at `w` (map frame) with calibrated reflectivity `eta` to its cell.
+fn add_to_cell(cells: &mut HashMap<[i32; 3], Cell>, w: &Point3<f64>, eta: f32) {
+    let w = [w.x as f32, w.y as f32, w.z as f32];
+    let key = w.map(|v| (v / VOXEL_M).floor() as i32);
+    let cell = cells.entry(key).or_insert(Cell {
+        sum: [0.0; 3],
+        eta_sum: 0.0,
+        eta_count: 0,
+        count: 0,
+    });
+    for (sum, v) in cell.sum.iter_mut().zip(w) {
+        *sum += v;
+    }
+    cell.count += 1;
+    if eta.is_finite() {
+        cell.eta_sum += eta;
+        cell.eta_count += 1;
+    }
+}
+
 pub struct Scene {
     rec: RecordingStream,
+    keyframes: KeyframeMap,
     counts: Counts,
     map_poses: VecDeque<(u64, Isometry3<f64>)>,
     map_track: Vec<[f32; 3]>,
     odom_track: Vec<[f32; 3]>,
     cells: HashMap<[i32; 3], Cell>,
+    /// The keyframe map's cells, rebuilt when it changed; empty until it has clouds.
+    keyframe_cells: HashMap<[i32; 3], Cell>,
     last_state: Option<&'static str>,
     robot: Option<[f32; 3]>,
     /// Sensor time of the newest pose or sweep, ns: where status lines are logged.
@@ -85,6 +192,8 @@ impl Scene {
             map_track: Vec::new(),
             odom_track: Vec::new(),
             cells: HashMap::new(),
+            keyframes: KeyframeMap::default(),
+            keyframe_cells: HashMap::new(),
             last_state: None,
             robot: None,
             now_ns: 0,
@@ -183,7 +292,7 @@ impl Scene {
         // lost is not known to be in the map's frame.
         if tracked {
             self.map_poses
-                .push_back((pose.timestamp_ns, isometry(pose)));
+                .push_back((pose.timestamp_ns, isometry(pose.position, pose.orientation)));
             if self.map_poses.len() > RECENT_POSES {
                 self.map_poses.pop_front();
             }
@@ -275,23 +384,7 @@ impl Scene {
                 f64::from(p.position[1]),
                 f64::from(p.position[2]),
             );
-            let w = pose * local;
-            let w = [w.x as f32, w.y as f32, w.z as f32];
-            let key = w.map(|v| (v / VOXEL_M).floor() as i32);
-            let cell = self.cells.entry(key).or_insert(Cell {
-                sum: [0.0; 3],
-                eta_sum: 0.0,
-                eta_count: 0,
-                count: 0,
-            });
-            for (sum, v) in cell.sum.iter_mut().zip(w) {
-                *sum += v;
-            }
-            cell.count += 1;
-            if p.intensity.is_finite() {
-                cell.eta_sum += p.intensity;
-                cell.eta_count += 1;
-            }
+            add_to_cell(&mut self.cells, &(pose * local), p.intensity);
         }
         if self.cells.len() > MAX_VOXELS {
             self.evict_far_cells();
@@ -342,10 +435,60 @@ impl Scene {
         }
     }
 
+    /// Takes a `map_update` message; it shows at the next refresh.
+    pub fn on_map_update(&mut self, update: MapUpdate) {
+        self.counts.map_updates += 1;
+        self.keyframes.take(update);
+    }
+
+    /// The keyframes, the odometry chain between them and the loops.
+    fn log_keyframes(&self) -> Result<()> {
+        let k = &self.keyframes;
+        let positions: Vec<[f32; 3]> = k
+            .poses
+            .values()
+            .map(|p| p.position.map(|v| v as f32))
+            .collect();
+        self.rec.log(
+            "world/keyframes",
+            &rerun::Points3D::new(positions.iter().copied())
+                .with_radii([rerun::Radius::new_ui_points(3.0)])
+                .with_colors([rerun::Color::from_rgb(250, 200, 40)]),
+        )?;
+        self.rec.log(
+            "world/keyframes/odometry",
+            &rerun::LineStrips3D::new([positions])
+                .with_colors([rerun::Color::from_rgb(200, 200, 200)]),
+        )?;
+        let loops: Vec<Vec<[f32; 3]>> = k
+            .edges
+            .iter()
+            .filter_map(|e| Some(vec![k.position(e.from)?, k.position(e.to)?]))
+            .collect();
+        self.rec.log(
+            "world/keyframes/loops",
+            &rerun::LineStrips3D::new(loops)
+                .with_colors([rerun::Color::from_rgb(240, 60, 200)])
+                .with_radii([rerun::Radius::new_ui_points(2.0)]),
+        )?;
+        Ok(())
+    }
+
     fn refresh(&mut self) -> Result<()> {
         self.at(self.now_ns);
-        let (centres, colors): (Vec<[f32; 3]>, Vec<rerun::Color>) = self
-            .cells
+        if self.keyframes.changed {
+            self.keyframes.changed = false;
+            self.keyframe_cells = self.keyframes.cells();
+            self.log_keyframes()?;
+        }
+        // The daemon's own map when it publishes one: placed at optimised poses, it is
+        // straightened by every loop closure, where the gathered one keeps both sides of a drift.
+        let cells = if self.keyframe_cells.is_empty() {
+            &self.cells
+        } else {
+            &self.keyframe_cells
+        };
+        let (centres, colors): (Vec<[f32; 3]>, Vec<rerun::Color>) = cells
             .values()
             .map(|c| {
                 let n = c.count as f32;
@@ -439,14 +582,6 @@ fn state_name(flags: StatusFlags) -> &'static str {
     } else {
         "NOT TRACKING"
     }
-}
-
-fn isometry(pose: &Pose) -> Isometry3<f64> {
-    let [x, y, z, w] = pose.orientation;
-    Isometry3::from_parts(
-        Translation3::new(pose.position[0], pose.position[1], pose.position[2]),
-        UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
-    )
 }
 
 /// Appends to a trajectory, thinning its older half when it is full.

@@ -3,7 +3,9 @@
 
 use std::time::{Duration, Instant};
 
-use glint_ipc::{Domain, PoseStream, PoseSubscriber, StatusSubscriber, SweepSubscriber};
+use glint_ipc::{
+    Domain, MapUpdateSubscriber, PoseStream, PoseSubscriber, StatusSubscriber, SweepSubscriber,
+};
 
 use crate::scene::Scene;
 
@@ -74,6 +76,7 @@ pub struct Sources {
     map: Port<PoseSubscriber>,
     status: Port<StatusSubscriber>,
     sweep: Port<SweepSubscriber>,
+    map_update: Port<MapUpdateSubscriber>,
 }
 
 impl Sources {
@@ -84,6 +87,7 @@ impl Sources {
             map: Port::new(),
             status: Port::new(),
             sweep: Port::new(),
+            map_update: Port::new(),
         }
     }
 
@@ -115,6 +119,14 @@ impl Sources {
             usize::MAX,
             |sub| sub.try_next(|header, points| scene.on_sweep(header, points)),
             |()| {},
+        );
+        // All of them: a new subscriber is sent the whole map, paced for a reader that polls
+        // every 100 ms.
+        received += self.map_update.drain(
+            || MapUpdateSubscriber::open(domain).ok(),
+            usize::MAX,
+            MapUpdateSubscriber::try_next,
+            |update| scene.on_map_update(update),
         );
         received
     }

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Reads a glint-view recording back with the rerun SDK (rerun-sdk==0.36.3) and prints, one per
-line, `name value`: the `world/robot` transforms on the sensor timeline, the sweep and map point
-clouds, and the timeline's first and last instant (ns since the Unix epoch).
+line, `name value`: the instants on the sensor timeline of the `world/robot` transforms, the sweep
+and map point clouds, the keyframes and the lines joining them, and the timeline's first and last
+instant (ns since the Unix epoch).
 
     python3 view/tests/check_recording.py view.rrd
 """
@@ -28,7 +29,13 @@ def columns(chunk):
 
 
 def main(path):
-    times = {"transforms": set(), "sweep_clouds": set(), "map_clouds": set()}
+    times = {
+        "transforms": set(),
+        "sweep_clouds": set(),
+        "map_clouds": set(),
+        "keyframes": set(),
+        "odometry_lines": set(),
+    }
     timelines = set()
     for chunk in RrdReader(path).stream().to_chunks():
         if chunk.is_static:
@@ -42,6 +49,12 @@ def main(path):
             times["sweep_clouds"].update(instants(chunk))
         elif entity == "/world/map" and any("Points3D:positions" in n for n in names):
             times["map_clouds"].update(instants(chunk))
+        elif entity == "/world/keyframes" and any("Points3D:positions" in n for n in names):
+            times["keyframes"].update(instants(chunk))
+        elif entity == "/world/keyframes/odometry" and any(
+            "LineStrips3D:strips" in n for n in names
+        ):
+            times["odometry_lines"].update(instants(chunk))
     if TIMELINE not in timelines:
         print(f"no {TIMELINE} timeline; timelines: {sorted(timelines)}", file=sys.stderr)
         return 1

@@ -2,9 +2,9 @@
 //! domain of its own while `glint-view --save` records it. The recording is then read back with
 //! the `rerun-sdk` Python package (`check_recording.py`), which must find a `world/robot`
 //! transform for every sweep the replay published (but the first, which may come before the
-//! viewer attached), point clouds, and the sensor's timeline spanning the replay's poses; and it
-//! is shown in rerun's web viewer in headless Chromium (`browser.py`), which must draw it, not
-//! an empty viewer.
+//! viewer attached), point clouds, the keyframes of `map_update` and the chain joining them, and
+//! the sensor's timeline spanning the replay's poses; and it is shown in rerun's web viewer in
+//! headless Chromium (`browser.py`), which must draw it, not an empty viewer.
 //!
 //! Needs `glintd` built beside `glint-view` (`cargo test --workspace` builds both),
 //! `rerun-sdk==0.36.3` for Python 3 (`examples/python/requirements.txt`) and, for the browser,
@@ -115,7 +115,7 @@ fn record() -> Recorded {
     let replay = glintd()
         .arg("replay")
         .arg(run.join("scan.pcap"))
-        .args(["--pace", "realtime", "--no-loop", "--domain", &domain])
+        .args(["--pace", "realtime", "--domain", &domain])
         .arg("--odom-trajectory")
         .arg(&trajectory)
         .stdout(Stdio::null())
@@ -193,6 +193,9 @@ fn a_replay_viewed_and_saved_reads_back_with_a_transform_per_sweep() {
     );
     assert!(report.get::<usize>("sweep_clouds") + 1 >= sweeps.len());
     assert!(report.get::<usize>("map_clouds") >= 1);
+    // The daemon's keyframes (map_update) and the chain joining them.
+    assert!(report.get::<usize>("keyframes") >= 1);
+    assert!(report.get::<usize>("odometry_lines") >= 1);
     // The sensor's timeline carries the poses' own stamps.
     let (first, last): (u64, u64) = (report.get("time_min_ns"), report.get("time_max_ns"));
     assert!(
