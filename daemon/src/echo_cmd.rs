@@ -1,18 +1,19 @@
-//! `glintd echo`: subscribe to a running daemon's poses, status or sweeps and print one line
-//! each.
+//! `glintd echo`: subscribe to a running daemon's poses, status, sweeps or map updates and
+//! print one line each.
 
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use clap::Args;
 use glint_ipc::{
-    Domain, PointLabel, PoseStream, PoseSubscriber, StatusSubscriber, SweepSubscriber,
+    Domain, MapContent, MapUpdateSubscriber, PointLabel, PoseStream, PoseSubscriber,
+    StatusSubscriber, SweepSubscriber,
 };
 
 /// Arguments of `glintd echo`.
 #[derive(Args, Debug)]
 pub struct EchoArgs {
-    /// The stream: odom, map, predicted, status or sweep.
+    /// The stream: odom, map, predicted, status, sweep or map_update.
     #[arg(long, default_value = "odom")]
     pub stream: String,
     /// The daemon's domain (service-name prefix).
@@ -104,13 +105,46 @@ pub fn run(args: EchoArgs) -> Result<()> {
                 None => std::thread::sleep(Duration::from_millis(10)),
             }
         }
+    } else if args.stream == "map_update" {
+        let sub = open_waiting(args.wait, || MapUpdateSubscriber::open(&domain))
+            .with_context(|| format!("no glintd publishing its map in domain {:?}", args.domain))?;
+        // No event service either: poll often enough for a new subscriber's paced map.
+        while !done(received) && !expired() {
+            match sub.try_next().context("cannot receive")? {
+                Some(m) => {
+                    let h = m.header;
+                    let what = match &m.content {
+                        MapContent::Cloud(points) => {
+                            format!("cloud keyframe={} points={}", h.keyframe, points.len())
+                        }
+                        MapContent::KeyframePoses(poses) => format!("poses count={}", poses.len()),
+                        MapContent::Edges(edges) => format!("edges count={}", edges.len()),
+                        MapContent::Unreadable => format!("unreadable kind={}", h.kind),
+                    };
+                    say!(
+                        "map_update {} t={} {what} part={}/{} keyframes={} map_id={} flags={}",
+                        h.sequence,
+                        h.sensor_time_ns,
+                        h.part + 1,
+                        h.parts,
+                        h.keyframes,
+                        h.map_id,
+                        h.flags.0
+                    );
+                    received += 1;
+                }
+                None => std::thread::sleep(Duration::from_millis(10)),
+            }
+        }
     } else {
         let stream = match args.stream.as_str() {
             "odom" => PoseStream::Odom,
             "map" => PoseStream::Map,
             "predicted" => PoseStream::Predicted,
             other => {
-                anyhow::bail!("unknown --stream {other:?}: odom, map, predicted, status or sweep")
+                anyhow::bail!(
+                    "unknown --stream {other:?}: odom, map, predicted, status, sweep or map_update"
+                )
             }
         };
         let sub = open_waiting(args.wait, || PoseSubscriber::open(&domain, stream))

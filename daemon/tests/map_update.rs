@@ -288,6 +288,13 @@ fn consumers_hold_the_map_as_keyframes_mapping_and_localising() {
             site.to_str().unwrap(),
         ],
     );
+    // The operator's view of the same service.
+    let echo = glintd()
+        .args(["echo", "--stream", "map_update", "--domain", &name])
+        .args(["--count", "3", "--wait", "20", "--timeout", "30"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
     let domain = Domain::new(&name).unwrap();
     let early = open(&domain, &mut localising);
     let mut first = HeldMap::default();
@@ -307,6 +314,16 @@ fn consumers_hold_the_map_as_keyframes_mapping_and_localising() {
     first.drain(&early);
     assert!(localising.wait().unwrap().success());
     let late = late.expect("the replay ran for more than 2 s");
+    let echoed = echo.wait_with_output().unwrap();
+    assert!(echoed.status.success());
+    let echoed = String::from_utf8_lossy(&echoed.stdout).into_owned();
+    assert_eq!(echoed.lines().count(), 3, "{echoed}");
+    assert!(
+        echoed
+            .lines()
+            .all(|l| l.starts_with("map_update ") && l.contains(" keyframes=")),
+        "{echoed}"
+    );
     second.drain(&late);
 
     for (who, got) in [("early", &first), ("late", &second)] {
