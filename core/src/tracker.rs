@@ -236,6 +236,17 @@ pub struct Tracker {
     /// a keyframe at or after it (a robot carried to a look-alike aisle matches as usual again
     /// one sweep after the jump, and only the map can tell).
     doubted_at: Option<u64>,
+    /// The odometry's first sweep, a keyframe waiting for the motion it was taken with.
+    first_keyframe: Option<WaitingKeyframe>,
+}
+
+/// The first sweep of a run or an epoch, kept until the motion to deskew it with is known.
+#[derive(Debug, Clone)]
+struct WaitingKeyframe {
+    time_ns: u64,
+    pose: Isometry3<f64>,
+    epoch: u64,
+    features: SweepFeatures,
 }
 
 impl Tracker {
@@ -258,6 +269,7 @@ impl Tracker {
             usual: true,
             restart_at: None,
             doubted_at: None,
+            first_keyframe: None,
         }
     }
 
@@ -422,23 +434,7 @@ impl Tracker {
             }
             event = event.or(self.watch(&estimate, quality, cost, jump.is_some()));
         }
-        let keyframe = match &self.keyframes {
-            Some(config)
-                if estimate.status != TrackingStatus::Lost
-                    && self
-                        .selector
-                        .is_keyframe(estimate.time_ns, &estimate.pose, config) =>
-            {
-                Some(Keyframe::new(
-                    estimate.time_ns,
-                    estimate.pose,
-                    self.odometry.deskewed_input(),
-                    self.odometry.map_points(features, &Isometry3::identity()),
-                    config,
-                ))
-            }
-            _ => None,
-        };
+        let keyframe = self.keyframe(features, &estimate);
         TrackedSweep {
             estimate,
             quality,
@@ -447,6 +443,59 @@ impl Tracker {
             departure,
             event,
         }
+    }
+
+    /// The keyframe this sweep gives, if any. The odometry's first sweep (of a run or an epoch)
+    /// waits for the motion it was taken with: its keyframe is given with the next sweep that
+    /// measures it, deskewed by it, and that sweep gives none of its own. Taken at once, a
+    /// robot already moving would enter the graph and the saved map smeared by a sweep's
+    /// travel (0.15 m at 1.5 m/s, 4° turning at 0.67 rad/s), and the map frame with it.
+    fn keyframe(
+        &mut self,
+        features: &SweepFeatures,
+        estimate: &OdometryEstimate,
+    ) -> Option<Keyframe> {
+        let config = self.keyframes.as_ref()?;
+        if let Some(waiting) = self.first_keyframe.take() {
+            if waiting.epoch != self.epoch {
+                // The odometry restarted before measuring the motion: that frame is void.
+            } else if self.odometry.awaits_motion() {
+                self.first_keyframe = Some(waiting);
+                return None;
+            } else {
+                return Some(Keyframe::new(
+                    waiting.time_ns,
+                    waiting.pose,
+                    &self.odometry.deskewed(&waiting.features),
+                    self.odometry
+                        .map_points(&waiting.features, &Isometry3::identity()),
+                    config,
+                ));
+            }
+        }
+        if estimate.status == TrackingStatus::Lost
+            || !self
+                .selector
+                .is_keyframe(estimate.time_ns, &estimate.pose, config)
+        {
+            return None;
+        }
+        if self.odometry.awaits_motion() {
+            self.first_keyframe = Some(WaitingKeyframe {
+                time_ns: estimate.time_ns,
+                pose: estimate.pose,
+                epoch: self.epoch,
+                features: features.clone(),
+            });
+            return None;
+        }
+        Some(Keyframe::new(
+            estimate.time_ns,
+            estimate.pose,
+            self.odometry.deskewed_input(),
+            self.odometry.map_points(features, &Isometry3::identity()),
+            config,
+        ))
     }
 
     /// Localising: counts sweeps lost or matching unlike recent ones, and restarts the odometry

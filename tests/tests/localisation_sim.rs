@@ -181,6 +181,8 @@ fn localise_extending(
             in_jumps: 0,
             position_rmse: 0.0,
             yaw_rmse_deg: 0.0,
+            horizontal_rmse: 0.0,
+            vertical_rmse: 0.0,
             max_position: 0.0,
             wrong_poses: 0,
         });
