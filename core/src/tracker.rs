@@ -13,6 +13,7 @@ use crate::config::OdometryConfig;
 use crate::features::SweepFeatures;
 use crate::localiser::MapState;
 use crate::odometry::{Odometry, OdometryEstimate, Stage, TrackingStatus};
+use crate::solver::AlignmentInput;
 
 /// A gap between sweeps longer than this (sensor silence, lost packets) voids the constant
 /// velocity: tracking restarts from the last pose, held still.
@@ -240,14 +241,28 @@ pub struct Tracker {
     first_keyframe: Option<WaitingKeyframe>,
 }
 
-/// The first sweep of a run or an epoch, kept until the motion to deskew it with is known.
+/// The first sweep of a run or an epoch, kept until the motion to deskew it with is known (see
+/// the tracker's `keyframe`).
 #[derive(Debug, Clone)]
 struct WaitingKeyframe {
     time_ns: u64,
     pose: Isometry3<f64>,
     epoch: u64,
     features: SweepFeatures,
+    /// Once the motion is known: the sweep deskewed by it.
+    deskewed: Option<DeskewedSweep>,
+    /// Sweeps matched since.
+    settled: usize,
 }
+
+/// A sweep's alignment input and its calibrated returns with their reflectivity, both
+/// deskewed and in its sensor frame: what a keyframe is made of.
+type DeskewedSweep = (AlignmentInput, Vec<(Vector3<f32>, f32)>);
+
+/// Mapping, the sweeps that grow the maps after the motion is known before the first keyframe
+/// is placed in them: half a second at 10 Hz, a few decimetres of travel, before the keyframe
+/// selector's 1 m would take the next keyframe.
+const FIRST_KEYFRAME_SETTLE: usize = 5;
 
 impl Tracker {
     /// A tracker with fresh odometry; keyframes are taken when `keyframes` is given.
@@ -446,32 +461,56 @@ impl Tracker {
     }
 
     /// The keyframe this sweep gives, if any. The odometry's first sweep (of a run or an epoch)
-    /// waits for the motion it was taken with: its keyframe is given with the next sweep that
-    /// measures it, deskewed by it, and that sweep gives none of its own. Taken at once, a
-    /// robot already moving would enter the graph and the saved map smeared by a sweep's
-    /// travel (0.15 m at 1.5 m/s, 4° turning at 0.67 rad/s), and the map frame with it.
+    /// waits for the motion it was taken with: taken at once, a robot already moving would put
+    /// it into the graph and the saved map smeared by a sweep's travel (0.15 m at 1.5 m/s, 4°
+    /// turning at 0.67 rad/s), and the map frame with it. Localising, its keyframe comes with
+    /// the next sweep that measures the motion, deskewed by it. Mapping, it also waits until
+    /// [`FIRST_KEYFRAME_SETTLE`] more sweeps have grown the maps, and is placed by aligning it
+    /// to them: the next sweeps were matched to the first one alone, and every later pose, the
+    /// whole map's heading with them, would keep the offset that left between the first sweep
+    /// and the rest. No other keyframe is taken meanwhile.
     fn keyframe(
         &mut self,
         features: &SweepFeatures,
         estimate: &OdometryEstimate,
     ) -> Option<Keyframe> {
         let config = self.keyframes.as_ref()?;
-        if let Some(waiting) = self.first_keyframe.take() {
-            if waiting.epoch != self.epoch {
-                // The odometry restarted before measuring the motion: that frame is void.
-            } else if self.odometry.awaits_motion() {
-                self.first_keyframe = Some(waiting);
-                return None;
-            } else {
-                return Some(Keyframe::new(
-                    waiting.time_ns,
-                    waiting.pose,
-                    &self.odometry.deskewed(&waiting.features),
-                    self.odometry
-                        .map_points(&waiting.features, &Isometry3::identity()),
-                    config,
-                ));
+        if let Some(mut waiting) = self.first_keyframe.take() {
+            if waiting.epoch == self.epoch {
+                if self.odometry.awaits_motion() {
+                    self.first_keyframe = Some(waiting);
+                    return None;
+                }
+                let settle = if self.localising {
+                    0
+                } else {
+                    FIRST_KEYFRAME_SETTLE
+                };
+                match waiting.deskewed {
+                    None => {
+                        waiting.deskewed = Some((
+                            self.odometry.deskewed(&waiting.features),
+                            self.odometry
+                                .map_points(&waiting.features, &Isometry3::identity())
+                                .collect(),
+                        ));
+                    }
+                    Some(_) if estimate.status != TrackingStatus::Lost => waiting.settled += 1,
+                    Some(_) => {}
+                }
+                if waiting.settled < settle {
+                    self.first_keyframe = Some(waiting);
+                    return None;
+                }
+                let (input, points) = waiting.deskewed.take().expect("deskewed above");
+                let pose = if settle > 0 {
+                    self.settled_pose(&input, &waiting.pose)
+                } else {
+                    waiting.pose
+                };
+                return Some(Keyframe::new(waiting.time_ns, pose, &input, points, config));
             }
+            // The odometry restarted before measuring the motion: that frame is void.
         }
         if estimate.status == TrackingStatus::Lost
             || !self
@@ -486,6 +525,8 @@ impl Tracker {
                 pose: estimate.pose,
                 epoch: self.epoch,
                 features: features.clone(),
+                deskewed: None,
+                settled: 0,
             });
             return None;
         }
@@ -496,6 +537,23 @@ impl Tracker {
             self.odometry.map_points(features, &Isometry3::identity()),
             config,
         ))
+    }
+
+    /// The first sweep's pose aligned to the maps the next sweeps grew, from `pose`, where the
+    /// alignment matched enough, is well constrained and moved it as little as an AGV's
+    /// prediction error may; otherwise `pose`.
+    fn settled_pose(&self, input: &AlignmentInput, pose: &Isometry3<f64>) -> Isometry3<f64> {
+        let a = self.odometry.place(input, pose);
+        let moved = pose.inverse() * a.pose;
+        let usable = a.edges + a.planes >= self.config.solver.min_correspondences
+            && !a.degenerate
+            && moved.translation.vector.norm() <= MAX_INNOVATION_M
+            && moved.rotation.angle() <= MAX_INNOVATION_RAD;
+        if usable {
+            a.pose
+        } else {
+            *pose
+        }
     }
 
     /// Localising: counts sweeps lost or matching unlike recent ones, and restarts the odometry

@@ -544,6 +544,9 @@ impl BackEnd {
                     .partition_point(|kf| kf.time_ns <= s.time_ns)
                     .saturating_sub(1);
                 let pose = match self.keyframes.get(k) {
+                    // A keyframe's own sweep is its node: the first keyframe's pose may have
+                    // been settled in the maps after the odometry reported the sweep.
+                    Some(kf) if kf.time_ns == s.time_ns => self.graph.poses[k],
                     Some(kf) => self.graph.poses[k] * kf.odom_pose.inverse() * s.pose,
                     None => s.pose,
                 };
