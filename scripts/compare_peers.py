@@ -30,6 +30,12 @@ which a loaded machine inflates far less. Glint runs odometry only (`--no-loop`,
 odometry) in its pipeline: the front end and the odometry on two threads (its CPU time also
 holds reading and decoding the capture, ~1 % of it); KISS-ICP is limited to two threads (its
 `max_num_threads`) and timed around `register_frame` alone.
+With --one-thread it times instead, on one core (`taskset -c 0`), `glintd bench` (the
+odometry on one thread: calibration, features, deskew, alignment, map update; decoding
+untimed) against KISS-ICP with `max_num_threads = 1` timed around `register_frame` (decoding
+untimed), on the same captures, alternating the two --rounds times (default 3) in one run, and
+prints each one's median per-sweep time (the median of its rounds' medians) and the ratio.
+
 Not part of the test suite: it needs PyPI and takes several minutes (2 cores: ~10-20 min).
 """
 import argparse
@@ -121,8 +127,9 @@ def read_decoded_ply(path):
     return np.memmap(path, dtype=np.dtype(fields), mode="r", offset=offset, shape=(count,))
 
 
-def kiss_worker(ply, out_tum, out_json):
-    """Runs KISS-ICP over every sweep of the PLY; writes TUM poses and per-sweep times."""
+def kiss_worker(ply, out_tum, out_json, threads=KISS_THREADS):
+    """Runs KISS-ICP over every sweep of the PLY on `threads` threads; writes TUM poses and
+    per-sweep times."""
     import numpy as np
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
@@ -135,7 +142,7 @@ def kiss_worker(ply, out_tum, out_json):
     # deskew on; only the thread count is set.
     config = KISSConfig()
     config.data.deskew = True
-    config.registration.max_num_threads = KISS_THREADS
+    config.registration.max_num_threads = threads
     config.mapping.voxel_size = config.data.max_range / 100.0
     odometry = KissICP(config=config)
 
@@ -160,7 +167,7 @@ def kiss_worker(ply, out_tum, out_json):
                 ref_ns // 10**9, ref_ns % 10**9, pose[0, 3], pose[1, 3], pose[2, 3], *q))
     with open(out_json, "w") as f:
         json.dump({"sweeps": len(times_ms), "times_ms": times_ms, "cpu_ms": cpu_ms,
-                   "kiss_icp": kiss_version(), "threads": KISS_THREADS,
+                   "kiss_icp": kiss_version(), "threads": threads,
                    "voxel_size": config.mapping.voxel_size,
                    "max_range": config.data.max_range}, f)
 
@@ -241,11 +248,11 @@ def percentile(values, q):
     return v[int(round((len(v) - 1) * q))]
 
 
-def run_scenario(glintd, python, scenario, seed, seconds, out_root, reuse, keep_ply):
+def simulate(glintd, scenario, seed, seconds, out_root, reuse):
+    """The scenario's folder, simulated unless --reuse finds the same run there."""
     d = os.path.join(out_root, f"{scenario}-s{seed}")
     os.makedirs(d, exist_ok=True)
     pcap = os.path.join(d, "scan.pcap")
-    gt = os.path.join(d, "groundtruth.tum")
     stamp = os.path.join(d, "sim.args")
     sim_args = f"{scenario} --seed {seed} --seconds {seconds:g}"
     if not (reuse and os.path.exists(pcap) and os.path.exists(stamp)
@@ -258,7 +265,13 @@ def run_scenario(glintd, python, scenario, seed, seconds, out_root, reuse, keep_
         for stale in ("kiss_icp.tum", "kiss_icp.json"):
             if os.path.exists(os.path.join(d, stale)):
                 os.remove(os.path.join(d, stale))
+    return d
 
+
+def run_scenario(glintd, python, scenario, seed, seconds, out_root, reuse, keep_ply):
+    d = simulate(glintd, scenario, seed, seconds, out_root, reuse)
+    pcap = os.path.join(d, "scan.pcap")
+    gt = os.path.join(d, "groundtruth.tum")
     result = {"scenario": scenario, "seed": seed, "seconds": seconds}
     for name, flags in (("glint_geometry", ["--no-intensity"]), ("glint_intensity", [])):
         print(f"[{scenario}] glintd replay{' ' + ' '.join(flags) if flags else ''} ...",
@@ -301,6 +314,48 @@ def run_scenario(glintd, python, scenario, seed, seconds, out_root, reuse, keep_
     with open(os.path.join(d, "results.json"), "w") as f:
         json.dump(result, f, indent=2)
     return result
+
+
+def one_thread(glintd, python, scenario, seed, seconds, out_root, reuse, rounds):
+    """Glint's `glintd bench` and KISS-ICP on one thread each, pinned to core 0, alternating
+    `rounds` times on the same capture: each round's median per-sweep time, in ms."""
+    if shutil.which("taskset") is None:
+        raise Failure("taskset not found (util-linux): it pins both to one core")
+    d = simulate(glintd, scenario, seed, seconds, out_root, reuse)
+    pcap = os.path.join(d, "scan.pcap")
+    ply = os.path.join(d, "sweeps.ply")
+    run([glintd, "decode", pcap, "--out", ply], os.path.join(d, "decode.log"))
+    glint, kiss = [], []
+    try:
+        for k in range(rounds):
+            print(f"[{scenario}] round {k + 1} of {rounds}: glintd bench, KISS-ICP (1 thread), "
+                  f"on core 0 ...", flush=True)
+            text = run(["taskset", "-c", "0", glintd, "bench", pcap],
+                       os.path.join(d, f"bench-{k}.log"))
+            glint.append(parse_float(r"per sweep: median ([0-9.]+) ms", text,
+                                     "glintd bench's median"))
+            out = os.path.join(d, f"kiss_icp_1t-{k}")
+            run(["taskset", "-c", "0", python, os.path.abspath(__file__), "--kiss-worker", ply,
+                 out + ".tum", out + ".json", "--kiss-threads", "1"], out + ".log")
+            with open(out + ".json") as f:
+                kiss.append(median(json.load(f)["times_ms"]))
+    finally:
+        if os.path.exists(ply):
+            os.remove(ply)
+    return {"scenario": scenario, "seed": seed, "glint_ms": glint, "kiss_ms": kiss}
+
+
+def one_thread_table(results, rounds):
+    lines = [
+        f"| scenario (seed) | glintd bench, median ms per sweep | KISS-ICP 1 thread, median ms "
+        f"per sweep | KISS-ICP / Glint |",
+        "| --- | --- | --- | --- |",
+    ]
+    for r in results:
+        g, k = median(r["glint_ms"]), median(r["kiss_ms"])
+        lines.append(f"| {r['scenario']} ({r['seed']}) | {g:.2f} | {k:.2f} | {k / g:.1f}x |")
+    return "\n".join(lines) + (f"\n\nEach the median of {rounds} rounds' medians, the two "
+                               f"alternating on core 0.")
 
 
 def table(results):
@@ -388,19 +443,27 @@ def main():
                          "scenario, seed and length); Glint is always rerun")
     ap.add_argument("--keep-ply", action="store_true",
                     help="keep the decoded sweeps (sweeps.ply, ~0.5 GB per minute)")
+    ap.add_argument("--one-thread", action="store_true",
+                    help="time glintd bench against KISS-ICP on one thread each, pinned to "
+                         "one core, alternating (no accuracy figures)")
+    ap.add_argument("--rounds", type=int, default=3,
+                    help="with --one-thread: alternations of the two (default 3)")
     ap.add_argument("--kiss-worker", nargs=3, metavar=("PLY", "OUT_TUM", "OUT_JSON"),
                     help=argparse.SUPPRESS)
+    ap.add_argument("--kiss-threads", type=int, default=KISS_THREADS, help=argparse.SUPPRESS)
     args = ap.parse_args()
 
     try:
         if args.kiss_worker:
-            kiss_worker(*args.kiss_worker)
+            kiss_worker(*args.kiss_worker, threads=args.kiss_threads)
             return 0
         seeds = dict(SCENARIOS)
         wanted = [s for s in args.scenarios.split(",") if s]
         unknown = [s for s in wanted if s not in seeds]
         if unknown:
             raise Failure(f"unknown scenario(s) {unknown}; known: {list(seeds)}")
+        if args.readme and args.one_thread:
+            raise Failure("--readme writes the accuracy table; --one-thread only times")
         if args.readme and (args.seconds < 60 or len(wanted) < len(SCENARIOS)):
             raise Failure("--readme needs all three scenarios and --seconds >= 60")
         if shutil.which("cargo") is None and not args.glintd:
@@ -410,6 +473,17 @@ def main():
             raise Failure(f"{glintd} is not an executable")
         python = venv_python()
         os.makedirs(args.out, exist_ok=True)
+        if args.one_thread:
+            if args.rounds < 1:
+                raise Failure("--rounds must be at least 1")
+            timed = [one_thread(glintd, python, s, seeds[s], args.seconds, args.out,
+                                args.reuse, args.rounds) for s in wanted]
+            text = one_thread_table(timed, args.rounds)
+            with open(os.path.join(args.out, "one-thread.md"), "w") as f:
+                f.write(text + "\n")
+            print()
+            print(text)
+            return 0
         results = [run_scenario(glintd, python, s, seeds[s], args.seconds, args.out,
                                 args.reuse, args.keep_ply) for s in wanted]
     except Failure as e:
