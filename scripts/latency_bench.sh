@@ -13,7 +13,8 @@
 # whole time (it reads every service and writes a recording); `stalled` starts it and stops it
 # with SIGSTOP once it is attached, so its ports are held and never read.
 #
-# Not run by CI (it takes SECONDS of wall time). The replay equivalent:
+# GLINTD=PATH times that binary instead of building this checkout's (to alternate an old and a
+# new one). Not run by CI (it takes SECONDS of wall time). The replay equivalent:
 #   glintd replay CAPTURE --pace realtime     (prints the same latency figures)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -31,11 +32,13 @@ for flag in "${@:4}"; do
         *) echo "unknown option $flag" >&2; exit 2 ;;
     esac
 done
-cargo build --release -p glintd --quiet
+if [ -z "${GLINTD:-}" ]; then
+    cargo build --release -p glintd --quiet
+fi
 if [ -n "$consumer" ]; then
     cargo build --release -p glint-view --quiet
 fi
-glintd=target/release/glintd
+glintd=${GLINTD:-target/release/glintd}
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 read -r data_port position_port < <(python3 -c 'import socket

@@ -7,8 +7,11 @@
 //! - steps 3–4: align the features to the local edge, plane and intensity maps;
 //! - step 5: read the degeneracy of the geometric constraints;
 //!
-//! then deskew again with the motion just estimated and grow the maps. Everything is pure: time
-//! comes with the data, and stage timing is reported through a caller's hook, never a clock.
+//! then deskew again with the motion just estimated and grow the maps. The pose is known before
+//! the maps grow: [`Odometry::locate`] returns it and leaves the growth to
+//! [`Odometry::update_maps`], so a caller can publish the pose first and grow the maps while the
+//! next sweep arrives; [`Odometry::register`] does both. Everything is pure: time comes with the
+//! data, and stage timing is reported through a caller's hook, never a clock.
 
 use nalgebra::{Isometry3, Point3, Vector3, Vector6};
 
@@ -41,7 +44,8 @@ pub enum Stage {
     Deskew,
     /// Scan-to-map alignment.
     Align,
-    /// Map update.
+    /// Map update (reported by the calls that grow the maps: [`Odometry::register`] and its
+    /// variants, not [`Odometry::locate`]).
     MapUpdate,
 }
 
@@ -81,6 +85,15 @@ pub struct Odometry {
     /// motion it was taken with (see [`Self::restart_maps`]).
     first_sweep: Option<(SweepFeatures, Isometry3<f64>)>,
     deskew_cache: DeskewCache,
+    /// The last located sweep's growth of the maps, until [`Self::update_maps`].
+    pending_growth: Option<PendingGrowth>,
+}
+
+/// Where a located sweep grows the maps, and whether cells far from it are evicted then.
+#[derive(Debug, Clone, Copy)]
+struct PendingGrowth {
+    pose: Isometry3<f64>,
+    evict: bool,
 }
 
 /// Sweeps between evictions of map cells far from the robot.
@@ -107,6 +120,7 @@ impl Odometry {
             mapped_at: None,
             first_sweep: None,
             deskew_cache: DeskewCache::default(),
+            pending_growth: None,
         }
     }
 
@@ -117,7 +131,7 @@ impl Odometry {
 
     /// The last registered sweep's edge, plane and intensity points, deskewed with the motion
     /// just estimated, in the sensor frame at its reference time: what a keyframe keeps (call
-    /// right after [`Self::register`]).
+    /// right after [`Self::locate`] or [`Self::register`]).
     pub fn deskewed_input(&self) -> &AlignmentInput {
         &self.input
     }
@@ -127,7 +141,8 @@ impl Odometry {
         self.last
     }
 
-    /// Registers one sweep's features. `on_stage` is called as each stage ends (for timing).
+    /// Registers one sweep's features: [`Self::locate`], then [`Self::update_maps`]. `on_stage`
+    /// is called as each stage ends (for timing).
     pub fn register(
         &mut self,
         features: &SweepFeatures,
@@ -135,6 +150,16 @@ impl Odometry {
     ) -> OdometryEstimate {
         let prediction = self.prediction(features.reference_ns);
         self.register_from(features, prediction, on_stage)
+    }
+
+    /// The sweep's pose from the constant-velocity prediction ([`Self::locate_from`]).
+    pub fn locate(
+        &mut self,
+        features: &SweepFeatures,
+        on_stage: impl FnMut(Stage),
+    ) -> OdometryEstimate {
+        let prediction = self.prediction(features.reference_ns);
+        self.locate_from(features, prediction, on_stage)
     }
 
     /// Step 0: the pose at `time_ns` by constant velocity from the last one (the identity
@@ -150,45 +175,61 @@ impl Odometry {
         }
     }
 
-    /// Registers one sweep whose true pose is known (ground truth, in diagnostics): aligns it
-    /// from that pose to measure how far the scan alone would move it, but grows the map and
-    /// takes the motion from the known pose. The estimate's `pose` is the alignment's.
-    pub fn register_at_known_pose(
+    /// Locates one sweep whose true pose is known (ground truth, in diagnostics): aligns it from
+    /// that pose to measure how far the scan alone would move it, but takes the motion from the
+    /// known pose, and [`Self::update_maps`] grows the maps there. The estimate's `pose` is the
+    /// alignment's.
+    pub fn locate_at_known_pose(
         &mut self,
         features: &SweepFeatures,
         pose: Isometry3<f64>,
         on_stage: impl FnMut(Stage),
     ) -> OdometryEstimate {
         self.known_poses = true;
-        let estimate = self.register_from(features, pose, on_stage);
+        let estimate = self.locate_from(features, pose, on_stage);
         self.known_poses = false;
         estimate
     }
 
     /// Registers one sweep from a given prediction of its pose (another sensor's, or ground
-    /// truth in tests) instead of the constant-velocity one. The method's steps, in order:
-    /// deskew by the predicted motion, align to the maps, deskew again by the motion measured
-    /// and refine, restart the maps from the first sweep when it was taken in motion, grow the
-    /// maps, and report the estimate.
+    /// truth in tests) instead of the constant-velocity one: [`Self::locate_from`], then
+    /// [`Self::update_maps`].
     pub fn register_from(
         &mut self,
         features: &SweepFeatures,
         prediction: Isometry3<f64>,
         mut on_stage: impl FnMut(Stage),
     ) -> OdometryEstimate {
+        let estimate = self.locate_from(features, prediction, &mut on_stage);
+        self.update_maps(features);
+        on_stage(Stage::MapUpdate);
+        estimate
+    }
+
+    /// The sweep's pose from a given prediction of it. The method's steps, in order: deskew by
+    /// the predicted motion, align to the maps, deskew again by the motion measured and refine,
+    /// restart the maps from the first sweep when it was taken in motion, and report the
+    /// estimate. The maps grow from the sweep in [`Self::update_maps`], which must follow with the
+    /// same features before the next sweep: a growth still pending then is dropped, and the
+    /// maps miss that sweep. (The first sweep, which starts the maps, grows them here.)
+    pub fn locate_from(
+        &mut self,
+        features: &SweepFeatures,
+        prediction: Isometry3<f64>,
+        mut on_stage: impl FnMut(Stage),
+    ) -> OdometryEstimate {
         let time_ns = features.reference_ns;
+        self.pending_growth = None;
         self.deskew(features, &self.velocity.clone());
         on_stage(Stage::Deskew);
         if self.last.is_none() || self.planes.is_empty() {
             on_stage(Stage::Align);
-            on_stage(Stage::MapUpdate);
             return self.initialise(features, time_ns, prediction);
         }
 
         let mut alignment = self.align(&prediction, Rounds::Full);
         if alignment.edges + alignment.planes < self.config.solver.min_correspondences {
             on_stage(Stage::Align);
-            on_stage(Stage::MapUpdate);
             // Hold the prediction; the maps do not grow from a sweep that did not match.
             self.last = Some((time_ns, prediction));
             self.sweeps += 1;
@@ -223,8 +264,7 @@ impl Odometry {
         } else {
             alignment.pose
         };
-        self.update_maps(features, time_ns, &mapped_at, !self.known_poses);
-        on_stage(Stage::MapUpdate);
+        self.commit(time_ns, mapped_at, !self.known_poses);
         let status = if alignment.degenerate {
             TrackingStatus::Degenerate
         } else {
@@ -340,25 +380,33 @@ impl Odometry {
         alignment
     }
 
-    /// The sweep at `pose` into the maps (and evicts what lies beyond their radius now and
-    /// then, with `evict`); `pose` becomes the last one.
-    fn update_maps(
-        &mut self,
-        features: &SweepFeatures,
-        time_ns: u64,
-        pose: &Isometry3<f64>,
-        evict: bool,
-    ) {
-        self.grow_maps(features, pose);
-        self.last = Some((time_ns, *pose));
+    /// `pose` becomes the last one; the sweep is to grow the maps there (and to evict what lies
+    /// beyond their radius now and then, with `evict`) in [`Self::update_maps`].
+    fn commit(&mut self, time_ns: u64, pose: Isometry3<f64>, evict: bool) {
+        self.last = Some((time_ns, pose));
         self.sweeps += 1;
-        if evict && self.sweeps.is_multiple_of(EVICT_EVERY) {
+        self.pending_growth = Some(PendingGrowth {
+            pose,
+            evict: evict && self.sweeps.is_multiple_of(EVICT_EVERY),
+        });
+    }
+
+    /// Grows the maps from the sweep just located, whose `features` these are (see
+    /// [`Self::locate_from`]); returns whether a growth was pending. Only the next sweep's
+    /// alignment needs it, so it may run after the pose is published.
+    pub fn update_maps(&mut self, features: &SweepFeatures) -> bool {
+        let Some(PendingGrowth { pose, evict }) = self.pending_growth.take() else {
+            return false;
+        };
+        self.grow_maps(features, &pose);
+        if evict {
             let center = pose.translation.vector.cast::<f32>();
             let radius = self.config.local_map.radius;
             self.edges.retain_near(&center, radius);
             self.planes.retain_near(&center, radius);
             self.intensity.retain_near(&center, radius);
         }
+        true
     }
 
     fn estimate(
@@ -378,7 +426,8 @@ impl Odometry {
     }
 
     /// The sweep's calibrated returns in the map frame at `pose`, deskewed with the current
-    /// velocity estimate (call right after [`Self::register`]), with their reflectivity.
+    /// velocity estimate (call right after [`Self::locate`] or [`Self::register`]), with their
+    /// reflectivity.
     pub fn map_points<'a>(
         &'a self,
         features: &'a SweepFeatures,
@@ -910,6 +959,28 @@ mod tests {
         assert!(errors.iter().all(|e| *e < 0.02), "{errors:?}");
     }
 
+    /// The features of sweep `k` (0.1 s apart) of a sensor driving along the room's x axis at
+    /// `speed` m/s from `start_x`.
+    fn driving_through_the_room(
+        front_end: &mut FrontEnd,
+        k: u64,
+        start_x: f32,
+        speed: f32,
+        out: &mut SweepFeatures,
+    ) {
+        let end_ns = 1_000_000_000 + k * 100_000_000;
+        let end_x = start_x + speed * 0.1 * k as f32;
+        let points = sweep_in_motion(end_ns, |ray, before_end| {
+            room_from(&Vector3::new(end_x - speed * before_end, 0.0, 0.0), ray)
+        });
+        let scan = Scan {
+            points: &points,
+            rings: 16,
+            reference_ns: end_ns,
+        };
+        front_end.process(&scan, out);
+    }
+
     #[test]
     fn the_first_keyframe_waits_for_the_motion_and_enters_unsmeared() {
         // The tracker's side of the start in motion: localising, the first sweep's keyframe
@@ -928,17 +999,7 @@ mod tests {
             let mut features = SweepFeatures::default();
             let mut taken = Vec::new();
             for k in 0..8u64 {
-                let end_ns = 1_000_000_000 + k * 100_000_000;
-                let end_x = -2.0 + speed * 0.1 * k as f32;
-                let points = sweep_in_motion(end_ns, |ray, before_end| {
-                    room_from(&Vector3::new(end_x - speed * before_end, 0.0, 0.0), ray)
-                });
-                let scan = Scan {
-                    points: &points,
-                    rings: 16,
-                    reference_ns: end_ns,
-                };
-                front_end.process(&scan, &mut features);
+                driving_through_the_room(&mut front_end, k, -2.0, speed, &mut features);
                 taken.push(tracker.track(&features, None, |_| {}).keyframe);
             }
             let given: Vec<usize> = (0..taken.len()).filter(|&k| taken[k].is_some()).collect();
@@ -960,6 +1021,64 @@ mod tests {
             let mean = wall.iter().sum::<f32>() / wall.len() as f32;
             assert!((mean + 4.0).abs() < 0.02, "{mean}");
         }
+    }
+
+    #[test]
+    fn the_pose_comes_before_the_map_update_and_changes_nothing() {
+        // The tracker stops at each sweep's pose and grows the maps after: its estimates are
+        // those of the odometry registering each sweep whole, and the first keyframe is placed
+        // in the maps as the sweep that places it leaves them.
+        use crate::backend::config::KeyframeConfig;
+        use crate::tracker::Tracker;
+        let speed = 1.5f32;
+        // Every sweep grows the maps.
+        let mut config = OdometryConfig::default();
+        config.local_map.update_distance = 0.0;
+        config.local_map.update_angle = 0.0;
+        let mut tracker = Tracker::new(&config, Some(&KeyframeConfig::default()));
+        let mut reference = Odometry::new(&config);
+        let mut front_end = FrontEnd::new(&config);
+        let sweep = |k: u64, front_end: &mut FrontEnd| {
+            let mut features = SweepFeatures::default();
+            driving_through_the_room(front_end, k, -3.0, speed, &mut features);
+            features
+        };
+        let first = sweep(0, &mut front_end);
+        let mut first_deskewed = None;
+        let mut keyframes = Vec::new();
+        for k in 0..24u64 {
+            let features = if k == 0 {
+                first.clone()
+            } else {
+                sweep(k, &mut front_end)
+            };
+            let tracked = tracker.track_pose(&features, None, |_| {});
+            let expected = reference.register(&features, |_| {});
+            assert_eq!(tracked.estimate, expected, "sweep {k}");
+            if let Some(keyframe) = tracked.keyframe {
+                keyframes.push((k, keyframe));
+            }
+            tracker.update_maps(&features);
+            assert!(!tracker.update_maps(&features), "grown twice");
+            if k == 1 {
+                // The first sweep deskewed by the motion the second measured, as the tracker
+                // keeps it.
+                first_deskewed = Some(reference.deskewed(&first));
+            }
+            if keyframes.len() == 1 && keyframes[0].0 == k {
+                let input = first_deskewed.as_ref().expect("after the second sweep");
+                let placed = reference.place(input, &Isometry3::identity());
+                assert_eq!(keyframes[0].1.odom_pose, placed.pose, "sweep {k}");
+            }
+        }
+        assert!(keyframes.len() >= 2, "{}", keyframes.len());
+        // A growth left out is dropped with the next sweep, which still tracks.
+        let features = sweep(24, &mut front_end);
+        tracker.track_pose(&features, None, |_| {});
+        let features = sweep(25, &mut front_end);
+        let e = tracker.track_pose(&features, None, |_| {}).estimate;
+        assert_ne!(e.status, TrackingStatus::Lost, "{e:?}");
+        assert!(tracker.update_maps(&features));
     }
 
     #[test]

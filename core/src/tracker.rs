@@ -1,6 +1,9 @@
 //! What happens to one sweep after its features, as the daemon ships it: the odometry's
 //! registration with the resume-after-gap policy, the match quality, keyframe selection and
-//! the `map ← odom` correction the back end (or the localiser) hands back. Every caller — the
+//! the `map ← odom` correction the back end (or the localiser) hands back. [`Tracker::track`]
+//! registers a sweep whole; [`Tracker::track_pose`] stops at its pose, and
+//! [`Tracker::update_maps`] then grows the odometry's maps from it, which the daemon does after
+//! publishing the pose (see [`crate::odometry`]). Every caller — the
 //! daemon's odometry stage, `glintd bench`, the end-to-end tests — drives this one type, so
 //! what the tests measure is what runs on the robot. Pure: the threads, channels and clocks
 //! stay with the caller.
@@ -362,10 +365,33 @@ impl Tracker {
         &self.history
     }
 
-    /// Registers one sweep's features. With `known_pose` (ground truth in diagnostics, in any
-    /// fixed frame: the first one becomes the identity) the sweep is aligned from it and the
-    /// map grown at it. `on_stage` is called as each odometry stage ends (for timing).
+    /// Registers one sweep's features: [`Self::track_pose`], then [`Self::update_maps`]. With
+    /// `known_pose` (ground truth in diagnostics, in any fixed frame: the first one becomes the
+    /// identity) the sweep is aligned from it and the map grown at it. `on_stage` is called as
+    /// each odometry stage ends (for timing).
     pub fn track(
+        &mut self,
+        features: &SweepFeatures,
+        known_pose: Option<Isometry3<f64>>,
+        on_stage: impl FnMut(Stage),
+    ) -> TrackedSweep {
+        let mut on_stage = on_stage;
+        let tracked = self.track_pose(features, known_pose, &mut on_stage);
+        self.update_maps(features);
+        on_stage(Stage::MapUpdate);
+        tracked
+    }
+
+    /// Grows the odometry's maps from the sweep [`Self::track_pose`] just tracked, whose
+    /// `features` these are; returns whether a growth was pending. Must come before the next
+    /// sweep (see [`Odometry::locate_from`]).
+    pub fn update_maps(&mut self, features: &SweepFeatures) -> bool {
+        self.odometry.update_maps(features)
+    }
+
+    /// [`Self::track`] up to the sweep's pose, keyframe and events: the odometry's maps grow
+    /// from it in [`Self::update_maps`], which the caller runs once the pose is on its way.
+    pub fn track_pose(
         &mut self,
         features: &SweepFeatures,
         known_pose: Option<Isometry3<f64>>,
@@ -390,17 +416,15 @@ impl Tracker {
             (None, _) if restart.is_some() => {
                 self.odometry = Odometry::new(&self.config);
                 let at = restart.expect("matched on is_some");
-                self.odometry.register_from(features, at, on_stage)
+                self.odometry.locate_from(features, at, on_stage)
             }
-            (Some(pose), _) => self
-                .odometry
-                .register_at_known_pose(features, pose, on_stage),
+            (Some(pose), _) => self.odometry.locate_at_known_pose(features, pose, on_stage),
             (None, Some((_, last))) => {
                 // The robot may have moved anywhere while the data stopped. Try the sweep from
                 // the last pose on a copy, and keep the copy's maps only if the sweep matches;
                 // otherwise report lost at the last good pose and try again with the next one.
                 let mut probe = self.odometry.clone();
-                let e = probe.register_from(features, last, on_stage);
+                let e = probe.locate_from(features, last, on_stage);
                 let quality = match_quality(&e, features);
                 let cost = e.alignment.as_ref().map_or(f64::NAN, |a| a.cost);
                 if e.status != TrackingStatus::Lost && self.history.usual_match(quality, cost) {
@@ -422,7 +446,7 @@ impl Tracker {
                     }
                 }
             }
-            (None, None) => self.odometry.register(features, on_stage),
+            (None, None) => self.odometry.locate(features, on_stage),
         };
         let departure = known_pose.map(|pose| (estimate.pose.inverse() * pose).translation.vector);
         let quality = match_quality(&estimate, features);
@@ -448,6 +472,10 @@ impl Tracker {
                 estimate.status = TrackingStatus::Lost;
             }
             event = event.or(self.watch(&estimate, quality, cost, jump.is_some()));
+        }
+        if self.first_keyframe.is_some() {
+            // The first keyframe may be placed in the maps as this sweep leaves them.
+            self.odometry.update_maps(features);
         }
         let keyframe = self.keyframe(features, &estimate);
         TrackedSweep {
@@ -593,7 +621,7 @@ impl Tracker {
     }
 
     /// The last sweep's calibrated returns placed at `pose` (call right after
-    /// [`Self::track`]), with their reflectivity.
+    /// [`Self::track`] or [`Self::track_pose`]), with their reflectivity.
     pub fn map_points<'a>(
         &'a self,
         features: &'a SweepFeatures,

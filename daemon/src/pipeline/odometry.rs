@@ -46,7 +46,8 @@ pub(super) struct StageTimes {
     pub(super) deskew: f64,
     /// Scan-to-map alignment.
     pub(super) align: f64,
-    /// Map update.
+    /// Map update, of the sweep before: it runs after that sweep's pose is sent on, off the
+    /// latency path.
     pub(super) map_update: f64,
 }
 
@@ -87,24 +88,23 @@ pub(super) fn run_odometry(
     heartbeats: &Heartbeats,
 ) -> OdometryOutcome {
     let mut world = map_voxel.map(WorldMap::new);
+    // The last sweep's map update, ms: reported with the next sweep, as it runs after the pose.
+    let mut map_update_ms = 0.0;
     while let Some(mut featured) = recv_beating(input, heartbeats, Stage::Odometry) {
         let returns = featured.returns.take();
         let features = &featured.features;
         let start = Instant::now();
         // When each step ended.
-        let (mut deskewed, mut aligned, mut map_updated) = (start, start, start);
-        let hook = |step| {
-            let end = match step {
-                OdometryStep::Deskew => &mut deskewed,
-                OdometryStep::Align => &mut aligned,
-                OdometryStep::MapUpdate => &mut map_updated,
-            };
-            *end = Instant::now();
+        let (mut deskewed, mut aligned) = (start, start);
+        let hook = |step| match step {
+            OdometryStep::Deskew => deskewed = Instant::now(),
+            OdometryStep::Align => aligned = Instant::now(),
+            OdometryStep::MapUpdate => {}
         };
         let known_pose = known
             .as_deref()
             .and_then(|gt| interpolate(gt, features.reference_ns));
-        let tracked = tracker.track(features, known_pose, hook);
+        let tracked = tracker.track_pose(features, known_pose, hook);
         match tracked.event {
             Some(TrackerEvent::Resumed { quality, cost }) => {
                 tracing::info!(quality, cost, "tracking resumed after a gap in the data");
@@ -128,13 +128,6 @@ pub(super) fn run_odometry(
             cost = tracked.cost,
             "sweep registered"
         );
-        if let Some(map) = world.as_mut() {
-            if estimate.status != TrackingStatus::Lost {
-                for (p, eta) in tracker.map_points(features, &estimate.pose) {
-                    map.insert(&p, eta);
-                }
-            }
-        }
         let previous_correction = tracker.correction();
         if let Some(link) = back_end.as_mut() {
             if let Some(keyframe) = tracked.keyframe {
@@ -150,6 +143,7 @@ pub(super) fn run_odometry(
         }
         let map_fix = tracker.map_fix(&estimate);
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
+        let (status, pose) = (estimate.status, estimate.pose);
         let message = Estimated {
             stamp_offset_ns: featured.stamp_offset_ns,
             map_from_odom: tracker.correction(),
@@ -161,7 +155,7 @@ pub(super) fn run_odometry(
                 front_end: featured.front_end_ms,
                 deskew: ms(start, deskewed),
                 align: ms(deskewed, aligned),
-                map_update: ms(aligned, map_updated),
+                map_update: map_update_ms,
             },
             counts: FeatureCounts {
                 edges: features.edges.len(),
@@ -174,6 +168,17 @@ pub(super) fn run_odometry(
         };
         if send_beating(output, message, heartbeats, Stage::Odometry).is_err() {
             break;
+        }
+        // The pose is on its way; what only the next sweep needs follows.
+        let grown = Instant::now();
+        tracker.update_maps(features);
+        map_update_ms = grown.elapsed().as_secs_f64() * 1e3;
+        if let Some(map) = world.as_mut() {
+            if status != TrackingStatus::Lost {
+                for (p, eta) in tracker.map_points(features, &pose) {
+                    map.insert(&p, eta);
+                }
+            }
         }
     }
     OdometryOutcome {
