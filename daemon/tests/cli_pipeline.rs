@@ -221,7 +221,9 @@ fn bench_times_every_stage_on_one_thread() {
 
 /// `glintd bench`'s stage lines ("  NAME: median X ms, p99 Y ms"): every stage timed, each
 /// figure a positive time, the 99th percentile at least the median, and no stage's median above
-/// the whole sweep's, which is their sum sweep by sweep. Speed itself is not asserted.
+/// the whole sweep's, which is their sum sweep by sweep. The part after the last packet holds
+/// the calibration, features and alignment, sweep by sweep, so its median is at least theirs.
+/// Speed itself is not asserted.
 fn assert_sane_stage_timings(text: &str) {
     let throughput = figure(report_line(text, " on one thread ("), "): ");
     assert!(throughput.is_finite() && throughput > 0.0, "{text}");
@@ -237,6 +239,7 @@ fn assert_sane_stage_timings(text: &str) {
         names,
         [
             "per sweep",
+            "after last packet",
             "calibration + features",
             "deskew",
             "alignment",
@@ -251,6 +254,13 @@ fn assert_sane_stage_timings(text: &str) {
     let sweep = timings[0].1;
     for (name, median, _) in &timings[1..] {
         assert!(*median <= sweep, "{name} above the whole sweep: {text}");
+    }
+    let to_pose = timings[1].1;
+    for (name, median, _) in [timings[2], timings[4]] {
+        assert!(
+            median <= to_pose,
+            "{name} above the part to the pose: {text}"
+        );
     }
 }
 
