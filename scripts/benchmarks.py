@@ -99,7 +99,8 @@ def accuracy(text, prefix=""):
 def timing(text):
     """Per-sweep and per-stage median / p99 (ms) from replay's or bench's printout."""
     t = {}
-    for key, label in (("sweep", "per sweep"), ("features", "calibration \\+ features"),
+    for key, label in (("sweep", "per sweep"),
+                       ("features", "calibration \\+ features(?: after the last packet)?"),
                        ("alignment", "alignment"), ("map", "map update")):
         m = re.search(rf"^\s*{label}: median ([0-9.]+) ms, p99 ([0-9.]+) ms", text, re.M)
         t[key] = (float(m.group(1)), float(m.group(2))) if m else (None, None)
@@ -193,7 +194,8 @@ class Bench:
 
     def bench(self, repeat):
         pin = ["taskset", "-c", "0"] if shutil.which("taskset") else []
-        rows = ["| run | per sweep, median / p99 | calibration + features | alignment | "
+        rows = ["| run | per sweep, median / p99 | calibration + features after the last packet "
+                "| alignment | "
                 "map update |", "| --- | --- | --- | --- | --- |"]
         runs = QUICK_ODOMETRY if self.quick else BENCH_RUNS
         for scenario, seed, seconds in runs:

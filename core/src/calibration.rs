@@ -4,10 +4,12 @@
 //! ring either side, and on the rings above and below at the same azimuth): no search.
 //! Retro-reflectors (> 100) keep their raw value and their class; weak returns are dropped.
 
+use std::cell::Cell;
+
 use nalgebra::Vector3;
 
 use crate::config::CalibrationConfig;
-use crate::scan::Scan;
+use crate::scan::{Scan, ScanPoint};
 
 /// The baseline a normal is built on, m, and the most ring steps taken to reach it along a ring.
 /// With 1.5 cm range noise, adjacent returns on a wall 2 m away (7 mm apart) give a normal that
@@ -116,9 +118,36 @@ fn atan2(y: f32, x: f32) -> f32 {
 pub const COLUMNS: usize = 1800;
 const COLUMNS_PER_RAD: f32 = COLUMNS as f32 / std::f32::consts::TAU;
 const EMPTY: u32 = u32::MAX;
+/// The farthest a normal looks along its ring, in returns: a return is calibrated as it
+/// streams in once this many more of its ring have arrived.
+const RING_REACH: usize = RING_STEPS[RING_STEPS.len() - 1];
+
+/// The offsets (reader ring minus cell ring) of the rings whose normals read a cell, as the
+/// walks across the rings take them ([`ACROSS_STEPS`] either way).
+const READER_OFFSETS: [isize; 4] = [-2, -1, 1, 2];
+
+/// The bit marking a cell of ring `cell_ring` as read by a normal on ring `reader`.
+#[inline(always)]
+fn reader_bit(cell_ring: usize, reader: usize) -> u8 {
+    match reader as isize - cell_ring as isize {
+        -2 => 1,
+        -1 => 2,
+        1 => 4,
+        _ => 8,
+    }
+}
 
 /// A sweep arranged by ring and azimuth column, with each return's calibrated reflectivity.
 /// Buffers are reused from sweep to sweep.
+///
+/// Filled either whole ([`Self::build`]) or as the sweep streams in ([`Self::begin`], then
+/// [`Self::extend`] with each batch of returns, then [`Self::finish`]): a return is calibrated
+/// as soon as its ring has [`RING_REACH`] more returns, so at the sweep's end little remains.
+/// Both give the same image, bit for bit. A ring's returns are calibrated in order (they reuse
+/// each other's normals); across the rings a normal reads cells of the rings around it, which
+/// are marked with the reader's ring, and a later return landing in a marked cell (the sweep's
+/// end wrapping onto its start, a return where there was none) has the rings that read it
+/// recalibrated at the finish.
 #[derive(Debug, Default, Clone)]
 pub struct RangeImage {
     rings: usize,
@@ -128,8 +157,16 @@ pub struct RangeImage {
     pub ring_positions: Vec<Vec<Vector3<f32>>>,
     /// Per ring × column, the index of the return there (the last one if several).
     cells: Vec<u32>,
+    /// Per ring × column: the rings whose normals read this cell, as bits for the ring offsets
+    /// −2, −1, +1, +2 (see [`reader_bit`]). Interior mutability because the normal's walks
+    /// borrow the image whole.
+    read: Vec<Cell<u8>>,
     /// Per point: its place in its ring's `ring_points` (`EMPTY` if in none).
     ring_index: Vec<u32>,
+    /// Per point: its ring and raw reflectivity.
+    ring: Vec<u8>,
+    /// See `ring`.
+    raw: Vec<u8>,
     /// Per point: its column, its range, and whether it passed the weak-return filter.
     pub column: Vec<u16>,
     /// See `column`.
@@ -147,6 +184,12 @@ pub struct RangeImage {
     steps: Vec<f32>,
     /// Per ring, the last return whose normal was estimated, and that normal.
     last_normal: Vec<Option<(Vector3<f32>, Vector3<f32>)>>,
+    /// Per ring, how many of its returns are calibrated (the first ones, in ring order).
+    done: Vec<usize>,
+    /// Per ring: a return landed in a cell one of its normals had read.
+    stale: Vec<bool>,
+    /// Rings recalibrated at the finish.
+    recalibrated: usize,
     /// The sweep's azimuth step, see [`Self::azimuth_step`].
     step: Option<f32>,
 }
@@ -154,8 +197,14 @@ pub struct RangeImage {
 impl RangeImage {
     /// Fills the image from a sweep and calibrates every return.
     pub fn build(&mut self, scan: &Scan<'_>, config: &CalibrationConfig) {
-        let n = scan.points.len();
-        self.rings = scan.rings.max(1);
+        self.begin(scan.rings);
+        self.extend(scan.points, config);
+        self.finish(config);
+    }
+
+    /// Starts a sweep of a sensor with `rings` rings; returns on other rings are left out.
+    pub fn begin(&mut self, rings: usize) {
+        self.rings = rings.max(1);
         self.ring_points.resize_with(self.rings, Vec::new);
         self.ring_positions.resize_with(self.rings, Vec::new);
         for r in &mut self.ring_points {
@@ -166,24 +215,60 @@ impl RangeImage {
         }
         self.cells.clear();
         self.cells.resize(self.rings * COLUMNS, EMPTY);
-        for v in [&mut self.range, &mut self.eta] {
-            v.clear();
-            v.resize(n, 0.0);
-        }
+        self.read.clear();
+        self.read.resize(self.rings * COLUMNS, Cell::new(0));
+        self.range.clear();
+        self.eta.clear();
         self.column.clear();
-        self.column.resize(n, 0);
         self.valid.clear();
-        self.valid.resize(n, false);
         self.ring_index.clear();
-        self.ring_index.resize(n, EMPTY);
+        self.ring.clear();
+        self.raw.clear();
         self.retro.clear();
-        self.retro.resize(n, false);
         self.azimuth.clear();
-        self.azimuth.resize(n, 0.0);
         self.normal.clear();
+        self.last_normal.clear();
+        self.last_normal.resize(self.rings, None);
+        self.done.clear();
+        self.done.resize(self.rings, 0);
+        self.stale.clear();
+        self.stale.resize(self.rings, false);
+        self.recalibrated = 0;
+        self.step = None;
+    }
+
+    /// The rings of the sweep begun.
+    pub fn rings(&self) -> usize {
+        self.rings
+    }
+
+    /// Returns taken in since [`Self::begin`].
+    pub fn len(&self) -> usize {
+        self.range.len()
+    }
+
+    /// No return taken in since [`Self::begin`].
+    pub fn is_empty(&self) -> bool {
+        self.range.is_empty()
+    }
+
+    /// Takes in the sweep's next returns, in firing order, and calibrates those whose
+    /// neighbourhood has arrived.
+    pub fn extend(&mut self, points: &[ScanPoint], config: &CalibrationConfig) {
+        let first = self.range.len();
+        let n = first + points.len();
+        self.range.resize(n, 0.0);
+        self.eta.resize(n, 0.0);
+        self.column.resize(n, 0);
+        self.valid.resize(n, false);
+        self.ring_index.resize(n, EMPTY);
+        self.ring.resize(n, 0);
+        self.raw.resize(n, 0);
+        self.retro.resize(n, false);
+        self.azimuth.resize(n, 0.0);
         self.normal.resize(n, [0.0; 3]);
 
-        for (i, p) in scan.points.iter().enumerate() {
+        for (i, p) in (first..).zip(points) {
             let [x, y, z] = p.position;
             let range = (x * x + y * y + z * z).sqrt();
             let ring = usize::from(p.ring);
@@ -200,53 +285,110 @@ impl RangeImage {
             self.range[i] = range;
             self.azimuth[i] = azimuth;
             self.column[i] = column as u16;
+            self.ring[i] = p.ring;
+            self.raw[i] = p.reflectivity;
             self.retro[i] = p.reflectivity > 100;
             self.valid[i] = p.reflectivity >= config.min_reflectivity;
             self.ring_index[i] = self.ring_points[ring].len() as u32;
             self.ring_points[ring].push(i as u32);
             self.ring_positions[ring].push(Vector3::new(x, y, z));
-            self.cells[ring * COLUMNS + column] = i as u32;
+            let cell = ring * COLUMNS + column;
+            let readers = self.read[cell].get();
+            if readers != 0 {
+                for (bit, offset) in READER_OFFSETS.iter().enumerate() {
+                    if readers & (1 << bit) != 0 {
+                        self.stale[ring.wrapping_add_signed(*offset)] = true;
+                    }
+                }
+            }
+            self.cells[cell] = i as u32;
         }
-        self.step = self.measure_azimuth_step();
+        self.calibrate(config, false);
+    }
 
-        // In firing order, not ring by ring: the returns above and below at the same azimuth
-        // were fired with the one calibrated and sit beside it in memory, so the sweep is read
-        // through once instead of once per ring.
-        let reuse_sq = config.normal_spacing * config.normal_spacing;
-        self.last_normal.clear();
-        self.last_normal.resize(self.rings, None);
-        for i in 0..n {
-            let k = self.ring_index[i];
-            if k == EMPTY {
-                continue;
+    /// Calibrates the returns left once the sweep is complete.
+    pub fn finish(&mut self, config: &CalibrationConfig) {
+        for ring in 0..self.rings {
+            if self.stale[ring] {
+                self.recalibrated += 1;
+                self.done[ring] = 0;
+                self.last_normal[ring] = None;
             }
-            let p = &scan.points[i];
-            let raw = f32::from(p.reflectivity);
-            if self.retro[i] {
-                self.eta[i] = raw;
-                continue;
-            }
-            let ring = usize::from(p.ring);
-            let position = Vector3::from(p.position);
-            let normal = match self.last_normal[ring] {
-                Some((anchor, unit)) if (position - anchor).norm_squared() < reuse_sq => Some(unit),
-                _ => {
-                    let unit = self.surface_normal(scan, ring, k as usize, i, config);
-                    self.last_normal[ring] = unit.map(|u| (position, u));
-                    unit
-                }
-            };
-            let cos = normal.map(|unit| {
-                self.normal[i] = [unit.x, unit.y, unit.z];
-                (position.dot(&unit) / self.range[i]).abs()
-            });
-            self.eta[i] = match cos {
-                Some(c) if c >= config.min_reliable_cos => {
-                    (raw / c.max(config.min_cos_incidence)).min(config.max_calibrated)
-                }
-                _ => f32::NAN,
-            };
         }
+        self.calibrate(config, true);
+        self.step = self.measure_azimuth_step();
+    }
+
+    /// How many rings of the sweep last finished had to be recalibrated (see the type's notes).
+    pub fn recalibrated(&self) -> usize {
+        self.recalibrated
+    }
+
+    /// Returns taken in and not yet calibrated.
+    pub fn pending(&self) -> usize {
+        (0..self.rings)
+            .map(|r| self.ring_points[r].len() - self.done[r])
+            .sum()
+    }
+
+    /// Calibrates each ring's returns from its first one not yet done: every one left when the
+    /// sweep is `complete`, otherwise those with [`RING_REACH`] more of the ring after them.
+    fn calibrate(&mut self, config: &CalibrationConfig, complete: bool) {
+        if complete && self.done.iter().all(|&d| d == 0) {
+            // In firing order, not ring by ring: the returns above and below at the same
+            // azimuth were fired with the one calibrated and sit beside it in memory, so the
+            // sweep is read through once instead of once per ring.
+            for i in 0..self.range.len() {
+                let k = self.ring_index[i];
+                if k != EMPTY {
+                    self.calibrate_return(i, usize::from(self.ring[i]), k as usize, config);
+                }
+            }
+            self.done.clear();
+            self.done.extend(self.ring_points.iter().map(Vec::len));
+            return;
+        }
+        for ring in 0..self.rings {
+            let n = self.ring_points[ring].len();
+            let end = if complete {
+                n
+            } else {
+                n.saturating_sub(RING_REACH)
+            };
+            for k in self.done[ring]..end {
+                let i = self.ring_points[ring][k] as usize;
+                self.calibrate_return(i, ring, k, config);
+            }
+            self.done[ring] = self.done[ring].max(end);
+        }
+    }
+
+    /// Calibrates return `i`, the `k`-th of ring `ring`, the ring's earlier ones done.
+    #[inline(always)]
+    fn calibrate_return(&mut self, i: usize, ring: usize, k: usize, config: &CalibrationConfig) {
+        let raw = f32::from(self.raw[i]);
+        if self.retro[i] {
+            self.eta[i] = raw;
+            return;
+        }
+        let reuse_sq = config.normal_spacing * config.normal_spacing;
+        let position = self.ring_positions[ring][k];
+        let normal = match self.last_normal[ring] {
+            Some((anchor, unit)) if (position - anchor).norm_squared() < reuse_sq => Some(unit),
+            _ => {
+                let unit = self.surface_normal(ring, k, i, config);
+                self.last_normal[ring] = unit.map(|u| (position, u));
+                unit
+            }
+        };
+        self.normal[i] = normal.map_or([0.0; 3], |unit| [unit.x, unit.y, unit.z]);
+        let cos = normal.map(|unit| (position.dot(&unit) / self.range[i]).abs());
+        self.eta[i] = match cos {
+            Some(c) if c >= config.min_reliable_cos => {
+                (raw / c.max(config.min_cos_incidence)).min(config.max_calibrated)
+            }
+            _ => f32::NAN,
+        };
     }
 
     /// Return `i`'s calibrated reflectivity η, NaN where it has none: a weak return (below
@@ -285,16 +427,26 @@ impl RangeImage {
         Some(*self.steps.select_nth_unstable_by(mid, f32::total_cmp).1)
     }
 
-    /// The return at ring `ring`, column `column` (or the next column either side), if any.
-    fn at(&self, ring: usize, column: usize) -> Option<usize> {
-        let row = &self.cells[ring * COLUMNS..(ring + 1) * COLUMNS];
+    /// The return at ring `ring`, column `column` (or the next column either side), if any;
+    /// the cells looked at are marked as read by `reader` (a bit of [`reader_bit`]).
+    fn at(&self, ring: usize, column: usize, reader: u8) -> Option<usize> {
+        let row = ring * COLUMNS;
         let next = if column + 1 == COLUMNS { 0 } else { column + 1 };
         let previous = if column == 0 { COLUMNS - 1 } else { column - 1 };
         [column, next, previous]
             .into_iter()
-            .map(|c| row[c])
+            .map(|c| {
+                let read = &self.read[row + c];
+                read.set(read.get() | reader);
+                self.cells[row + c]
+            })
             .find(|&v| v != EMPTY)
             .map(|v| v as usize)
+    }
+
+    /// The position of return `j`, which is in the image.
+    fn position(&self, j: usize) -> Vector3<f32> {
+        self.ring_positions[usize::from(self.ring[j])][self.ring_index[j] as usize]
     }
 
     /// The baseline walk across the rings from `p`, the return at ring `ring`, column
@@ -302,7 +454,6 @@ impl RangeImage {
     #[inline(always)]
     fn walk_across(
         &self,
-        scan: &Scan<'_>,
         (ring, column): (usize, usize),
         upward: bool,
         p: &Vector3<f32>,
@@ -312,16 +463,11 @@ impl RangeImage {
         for d in ACROSS_STEPS {
             let Some(j) = step(ring, d, upward)
                 .filter(|&r| r < self.rings)
-                .and_then(|r| self.at(r, column))
+                .and_then(|r| self.at(r, column, reader_bit(r, ring)))
             else {
                 break;
             };
-            if !reach(
-                &mut best,
-                Vector3::from(scan.points[j].position),
-                p,
-                gate_sq,
-            ) {
+            if !reach(&mut best, self.position(j), p, gate_sq) {
                 break;
             }
         }
@@ -332,7 +478,6 @@ impl RangeImage {
     /// `ring`), if they lie on one surface.
     fn surface_normal(
         &self,
-        scan: &Scan<'_>,
         ring: usize,
         k: usize,
         i: usize,
@@ -352,8 +497,7 @@ impl RangeImage {
         // wide; the surface test is the normal's consistency.
         let column = usize::from(self.column[i]);
         let across_sq = (0.5 * range + 0.2).powi(2);
-        let across_ring =
-            |upward: bool| self.walk_across(scan, (ring, column), upward, &p, across_sq);
+        let across_ring = |upward: bool| self.walk_across((ring, column), upward, &p, across_sq);
         let across = span(across_ring(false), across_ring(true), &p)?;
         let normal = along.cross(&across);
         let norm = normal.norm();

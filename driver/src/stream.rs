@@ -13,6 +13,7 @@ use crate::wire::{
 };
 
 const FULL_TURN: u16 = AZIMUTH_LIMIT;
+use crate::decode::Point;
 use crate::Decoder;
 use thiserror::Error;
 
@@ -233,6 +234,11 @@ impl SensorStream {
             a.finish();
         }
         Ok(())
+    }
+
+    /// The sweep still open, see [`SweepAssembler::open_sweep`].
+    pub fn open_sweep(&self) -> Option<(u64, &[Point])> {
+        self.assembler.as_ref()?.open_sweep()
     }
 
     /// The oldest completed sweep not yet taken.

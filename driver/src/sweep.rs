@@ -191,6 +191,14 @@ impl SweepAssembler {
         self.ready.pop_front()
     }
 
+    /// The sweep still open: its index and its returns so far (the start of what
+    /// [`Self::take_sweep`] will hand over for it), for consumers that work as it streams in.
+    pub fn open_sweep(&self) -> Option<(u64, &[Point])> {
+        self.cutter
+            .open
+            .then_some((self.cutter.current.index, self.points.as_slice()))
+    }
+
     /// Closes the open sweep at the end of the stream (it is partial unless it happens to end
     /// exactly at the cut); take it with [`Self::take_sweep`].
     pub fn finish(&mut self) {
@@ -448,6 +456,37 @@ mod tests {
         let sweeps = run(&pk, 0.0);
         assert!(sweeps.len() >= 2);
         assert!(sweeps.iter().all(|s| s.partial));
+    }
+
+    #[test]
+    fn the_open_sweep_is_the_start_of_the_sweep_it_becomes() {
+        let config = SweepConfig {
+            cut_azimuth: 0.0,
+            capacity: 1000,
+        };
+        let mut a = SweepAssembler::new(Decoder::for_model(Model::Vlp16), config);
+        assert!(a.open_sweep().is_none());
+        // Per sweep index: the returns seen open after each packet.
+        let mut seen: Vec<(u64, Vec<Point>)> = Vec::new();
+        let mut closed = Vec::new();
+        for (buf, t) in packets(250, 600.0, 30_000.0, &[]) {
+            a.push(&DataPacket::new_checked(&buf[..]).unwrap(), t, t);
+            closed.extend(std::iter::from_fn(|| a.take_sweep()));
+            let (index, points) = a.open_sweep().expect("a sweep is open");
+            match seen.last_mut() {
+                Some((i, p)) if *i == index => {
+                    assert!(points.starts_with(p), "an open sweep only grows");
+                    *p = points.to_vec();
+                }
+                _ => seen.push((index, points.to_vec())),
+            }
+        }
+        assert!(closed.len() >= 2);
+        for sweep in &closed {
+            let (_, open) = seen.iter().find(|(i, _)| *i == sweep.index).unwrap();
+            assert!(!open.is_empty() && open.len() < sweep.points.len());
+            assert!(sweep.points.starts_with(open));
+        }
     }
 
     #[test]

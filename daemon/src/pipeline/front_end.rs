@@ -3,15 +3,15 @@
 
 use std::time::Instant;
 
-use crossbeam_channel::{Receiver, Sender};
+use crossbeam_channel::{never, select, Receiver, Sender, TryRecvError};
 use glint_core::config::OdometryConfig;
 use glint_core::features::SweepFeatures;
 use glint_core::front_end::FrontEnd;
 use glint_core::scan::{Scan, ScanPoint};
-use glint_driver::Sweep;
+use glint_driver::{Point, Sweep};
 
-use super::health::{recv_beating, send_beating, Heartbeats, Stage};
-use super::receive::Arrival;
+use super::health::{send_beating, Heartbeats, Stage, IDLE_BEAT};
+use super::receive::{Arrival, Returns};
 use super::sweeps::LabelledSweep;
 
 /// A sweep's features on their way to the odometry.
@@ -26,18 +26,23 @@ pub(super) struct Featured {
     pub(super) returns: Option<LabelledSweep>,
 }
 
+/// A driver return as the odometry takes it.
+pub(super) fn scan_point(p: &Point) -> ScanPoint {
+    ScanPoint {
+        position: [p.x, p.y, p.z],
+        time_ns: p.time_ns,
+        reflectivity: p.reflectivity,
+        ring: p.ring,
+    }
+}
+
 /// Converts a driver sweep to the odometry's input, its points written into `out`; `None` for
 /// an empty sweep. The reference time is the sweep's last return; the ring count is whatever
 /// the sweep holds (16 for the VLP-16 family, 32 for the HDL-32E).
 pub fn scan_of<'a>(sweep: &Sweep, out: &'a mut Vec<ScanPoint>) -> Option<Scan<'a>> {
     let reference_ns = sweep.points.last()?.time_ns;
     out.clear();
-    out.extend(sweep.points.iter().map(|p| ScanPoint {
-        position: [p.x, p.y, p.z],
-        time_ns: p.time_ns,
-        reflectivity: p.reflectivity,
-        ring: p.ring,
-    }));
+    out.extend(sweep.points.iter().map(scan_point));
     let rings = out
         .iter()
         .map(|p| usize::from(p.ring) + 1)
@@ -50,19 +55,24 @@ pub fn scan_of<'a>(sweep: &Sweep, out: &'a mut Vec<ScanPoint>) -> Option<Scan<'a
     })
 }
 
-/// The front end's thread: features of each sweep, until the receive stage is gone.
+/// The front end's thread: features of each sweep, until the receive stage is gone. The open
+/// sweep's returns are calibrated as they arrive; at its close only the rest is left.
 pub(super) fn run_front_end(
     config: &OdometryConfig,
     label_returns: bool,
     input: &Receiver<Arrival>,
+    returns: &Receiver<Returns>,
     output: &Sender<Featured>,
     heartbeats: &Heartbeats,
 ) {
     let mut front_end = FrontEnd::new(config);
     let mut points = Vec::new();
     let mut start = LeadingSweep::default();
-    let mut process = |arrival: Arrival| -> Result<(), ()> {
+    let mut open = OpenSweep::default();
+    let mut returns = returns.clone();
+    let mut process = |arrival: Arrival, open: &mut OpenSweep, front_end: &mut FrontEnd| {
         let begin = Instant::now();
+        let index = arrival.sweep.index;
         let scan = scan_of(&arrival.sweep, &mut points);
         let stamp_offset_ns = arrival.sweep.stamp_offset_ns;
         if let Some(r) = &arrival.recycler {
@@ -71,10 +81,14 @@ pub(super) fn run_front_end(
         let Some(scan) = scan else {
             return Ok(());
         };
+        if !open.closes(index) {
+            front_end.begin(scan.rings);
+        }
+        open.rings = scan.rings;
         let mut features = SweepFeatures::default();
         front_end.process(&scan, &mut features);
         let front_end_ms = begin.elapsed().as_secs_f64() * 1e3;
-        let returns = label_returns.then(|| LabelledSweep::of(&scan, &front_end, &features));
+        let returns = label_returns.then(|| LabelledSweep::of(&scan, front_end, &features));
         let message = Featured {
             features,
             stamp_offset_ns,
@@ -84,16 +98,116 @@ pub(super) fn run_front_end(
         };
         send_beating(output, message, heartbeats, Stage::FrontEnd)
     };
-    while let Some(arrival) = recv_beating(input, heartbeats, Stage::FrontEnd) {
+    let mut admit = |arrival: Arrival, open: &mut OpenSweep, front_end: &mut FrontEnd| {
         for a in start.admit(arrival).into_iter().flatten() {
-            if process(a).is_err() {
-                return;
+            process(a, open, front_end)?;
+        }
+        Ok::<(), ()>(())
+    };
+    loop {
+        heartbeats.beat(Stage::FrontEnd);
+        // Closed sweeps first: one queued is older than any open sweep's returns.
+        let arrival = match input.try_recv() {
+            Ok(a) => Ok(a),
+            Err(TryRecvError::Disconnected) => break,
+            Err(TryRecvError::Empty) => select! {
+                recv(input) -> a => match a {
+                    Ok(a) => Ok(a),
+                    Err(_) => break,
+                },
+                recv(returns) -> r => match r {
+                    Ok(r) => Err(r),
+                    Err(_) => {
+                        returns = never();
+                        continue;
+                    }
+                },
+                default(IDLE_BEAT) => continue,
+            },
+        };
+        let result = match arrival {
+            Ok(a) => admit(a, &mut open, &mut front_end),
+            Err(r) => {
+                // A newer sweep's returns: the one before it is queued already (unless the
+                // receive stage dropped it), and goes first.
+                if open.is_newer(r.sweep) {
+                    let mut result = Ok(());
+                    while let (Ok(a), Ok(())) = (input.try_recv(), result) {
+                        result = admit(a, &mut open, &mut front_end);
+                    }
+                    result
+                } else {
+                    Ok(())
+                }
+                .map(|()| open.stream(&r, &mut front_end))
             }
+        };
+        if result.is_err() {
+            return;
         }
     }
     if let Some(a) = start.finish() {
         // A stream of nothing but partial sweeps (a capture shorter than two rotations).
-        let _ = process(a);
+        let _ = process(a, &mut open, &mut front_end);
+    }
+}
+
+/// The front end's view of the sweep streaming in.
+#[derive(Debug)]
+struct OpenSweep {
+    /// The sweep streamed into the front end, and how many of its returns.
+    streaming: Option<(u64, usize)>,
+    /// The last sweep processed.
+    done: Option<u64>,
+    /// The ring count of the last sweep processed: the next one's, for streaming.
+    rings: usize,
+}
+
+impl Default for OpenSweep {
+    fn default() -> Self {
+        Self {
+            streaming: None,
+            done: None,
+            rings: 16,
+        }
+    }
+}
+
+impl OpenSweep {
+    /// Returns of sweep `index` are of one not yet streamed nor processed.
+    fn is_newer(&self, index: u64) -> bool {
+        self.streaming.is_none_or(|(s, _)| index > s) && self.done.is_none_or(|d| index > d)
+    }
+
+    /// Streams returns into the front end if they continue what it holds or start a newer
+    /// sweep; drops them otherwise (an old sweep's, or after a gap).
+    fn stream(&mut self, r: &Returns, front_end: &mut FrontEnd) {
+        match self.streaming {
+            Some((s, n)) if s == r.sweep => {
+                if n != r.offset {
+                    // A gap: the sweep is calibrated whole at its close.
+                    self.streaming = None;
+                    front_end.begin(self.rings);
+                    return;
+                }
+            }
+            _ if r.offset == 0 && self.is_newer(r.sweep) => {
+                front_end.begin(self.rings);
+                self.streaming = Some((r.sweep, 0));
+            }
+            _ => return,
+        }
+        front_end.stream(&r.points);
+        if let Some((_, n)) = &mut self.streaming {
+            *n += r.points.len();
+        }
+    }
+
+    /// Sweep `index` is being processed: whether it is the one streamed in.
+    fn closes(&mut self, index: u64) -> bool {
+        let streamed = self.streaming.take().is_some_and(|(s, _)| s == index);
+        self.done = Some(self.done.map_or(index, |d| d.max(index)));
+        streamed
     }
 }
 

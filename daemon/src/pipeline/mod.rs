@@ -71,7 +71,7 @@ use front_end::{run_front_end, Featured};
 use health::Heartbeats;
 use map_updates::{run_map_publisher, HeldMap, MapEvent, MapOutlet, MAP_EVENT_QUEUE};
 use odometry::{run_odometry, Estimated, OdometryOutcome};
-use receive::{read_payloads, receive_live, Arrival, ReceiveCounters};
+use receive::{read_payloads, receive_live, Arrival, ReceiveCounters, Returns, OPEN_RETURNS_QUEUE};
 use sink::Sink;
 use sweeps::{run_sweep_publisher, PublishedSweep, SweepOutlet};
 
@@ -351,6 +351,8 @@ pub fn run(mut options: Options) -> Result<Summary> {
     };
 
     let (sweep_tx, sweep_rx) = bounded::<Arrival>(queue);
+    // Returns of the open sweep: a sweep's packets and then some, never waited for.
+    let (returns_tx, returns_rx) = bounded::<Returns>(OPEN_RETURNS_QUEUE);
     let (feature_tx, feature_rx) = bounded::<Featured>(queue);
     let (estimate_tx, estimate_rx) = bounded::<Estimated>(queue.max(4));
 
@@ -376,6 +378,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
                     pace,
                     &stop,
                     &sweep_tx,
+                    &returns_tx,
                     &heartbeats,
                     &counters,
                 )
@@ -392,6 +395,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
                     Pace::Max,
                     &stop,
                     &sweep_tx,
+                    &returns_tx,
                     &heartbeats,
                     &counters,
                 )
@@ -422,6 +426,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
                         silence,
                         &stop,
                         &sweep_tx,
+                        &returns_tx,
                         &heartbeats,
                         &counters,
                     )
@@ -450,7 +455,14 @@ pub fn run(mut options: Options) -> Result<Summary> {
         let config = options.odometry.clone();
         let label_returns = sweep_service.is_some();
         spawn("glint-features", move || {
-            run_front_end(&config, label_returns, &sweep_rx, &feature_tx, &heartbeats);
+            run_front_end(
+                &config,
+                label_returns,
+                &sweep_rx,
+                &returns_rx,
+                &feature_tx,
+                &heartbeats,
+            );
             Ok(())
         })?
     };

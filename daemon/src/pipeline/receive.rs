@@ -1,7 +1,10 @@
 //! The receive stage: packets from a capture (paced, waiting for the front end so a replay
 //! processes every sweep) or from the sensor's sockets (never waiting: a sweep that finds the
 //! front end's queue full is dropped whole and counted), closed into sweeps for the front end.
-//! Either way only one sensor's packets are decoded; another's are refused and counted.
+//! Either way only one sensor's packets are decoded; another's are refused and counted. The
+//! open sweep's returns are also offered to the front end as they arrive ([`OpenReturns`]), so
+//! it can calibrate them before the sweep closes; that stream never waits and is never needed:
+//! what it misses the front end does from the closed sweep.
 
 use std::net::{IpAddr, Ipv4Addr};
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
@@ -9,12 +12,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::Result;
 use crossbeam_channel::{Receiver, RecvTimeoutError, SendTimeoutError, Sender, TrySendError};
+use glint_core::scan::ScanPoint;
 use glint_driver::udp::{Datagram, ReceiveClock, UdpCounters, UdpSource};
 use glint_driver::{
     PacketKind, SensorStream, SourceFilter, StreamConfig, StreamError, Sweep, SweepRecycler,
     Verdict,
 };
 
+use super::front_end::scan_point;
 use super::health::{Heartbeats, Stage, IDLE_BEAT};
 use super::Pace;
 use crate::capture::{foreign_active, replay_payloads, CaptureReport, ForeignLog, PayloadSource};
@@ -72,6 +77,57 @@ impl ReceiveCounters {
     }
 }
 
+/// The most batches of open-sweep returns queued for the front end: two sweeps' packets at
+/// 10 Hz (76 a sweep), so a front end busy with one sweep still finds the next one's whole.
+pub(super) const OPEN_RETURNS_QUEUE: usize = 160;
+
+/// Returns of the sweep still open, on their way to the front end.
+pub(super) struct Returns {
+    /// The open sweep's index ([`Sweep::index`]).
+    pub(super) sweep: u64,
+    /// How many of its returns came before these.
+    pub(super) offset: usize,
+    pub(super) points: Vec<ScanPoint>,
+}
+
+/// Offers the open sweep's new returns to the front end after each packet, without waiting:
+/// a full queue ends the offers for that sweep (the front end then calibrates it whole).
+pub(super) struct OpenReturns<'a> {
+    out: &'a Sender<Returns>,
+    /// The sweep being offered and how many of its returns went.
+    sent: Option<(u64, usize)>,
+}
+
+impl<'a> OpenReturns<'a> {
+    pub(super) fn new(out: &'a Sender<Returns>) -> Self {
+        Self { out, sent: None }
+    }
+
+    /// Offers what the stream's open sweep gained since the last offer.
+    fn offer(&mut self, stream: &SensorStream) {
+        let Some((sweep, points)) = stream.open_sweep() else {
+            return;
+        };
+        let offset = match self.sent {
+            Some((s, n)) if s == sweep => n,
+            _ => 0,
+        };
+        if offset >= points.len() {
+            return;
+        }
+        let returns = Returns {
+            sweep,
+            offset,
+            points: points[offset..].iter().map(scan_point).collect(),
+        };
+        self.sent = Some(match self.out.try_send(returns) {
+            Ok(()) => (sweep, points.len()),
+            // Nothing more of this sweep: the front end could not use it after a gap.
+            Err(_) => (sweep, usize::MAX),
+        });
+    }
+}
+
 /// A closed sweep on its way to the front end.
 pub(super) struct Arrival {
     pub(super) sweep: Sweep,
@@ -91,10 +147,12 @@ pub(super) fn read_payloads(
     pace: Pace,
     stop: &AtomicBool,
     out: &Sender<Arrival>,
+    returns: &Sender<Returns>,
     heartbeats: &Heartbeats,
     counters: &ReceiveCounters,
 ) -> Result<CaptureReport> {
     let mut clock: Option<(u64, Instant)> = None;
+    let mut open = OpenReturns::new(returns);
     let downstream_gone = std::cell::Cell::new(false);
     replay_payloads(
         payloads,
@@ -106,6 +164,8 @@ pub(super) fn read_payloads(
             if stop.load(Ordering::Relaxed) || downstream_gone.get() {
                 return false;
             }
+            // What the previous packet added, before waiting for this one's time.
+            open.offer(stream);
             if let Pace::Factor(f) = pace {
                 let (t0, w0) = *clock.get_or_insert((record_ns, Instant::now()));
                 let due =
@@ -162,10 +222,12 @@ pub(super) fn receive_live(
     silence: Duration,
     stop: &AtomicBool,
     out: &Sender<Arrival>,
+    returns: &Sender<Returns>,
     heartbeats: &Heartbeats,
     counters: &ReceiveCounters,
 ) -> Result<()> {
     let udp = source.counters();
+    let mut open = OpenReturns::new(returns);
     let mut stream = SensorStream::new(stream);
     let mut filter = SourceFilter::new(sensor.map(IpAddr::V4));
     let mut foreign_log = ForeignLog::default();
@@ -255,6 +317,9 @@ pub(super) fn receive_live(
                 }
                 Err(TrySendError::Disconnected(_)) => return Ok(()),
             }
+        }
+        if datagram.is_some() {
+            open.offer(&stream);
         }
     }
     source.stop();
