@@ -324,6 +324,18 @@ impl RangeImage {
         self.recalibrated
     }
 
+    /// How many of ring `ring`'s returns are calibrated: its first ones, in ring order. Their
+    /// η is final unless the ring is [`Self::redone`].
+    pub fn calibrated_in_ring(&self, ring: usize) -> usize {
+        self.done.get(ring).copied().unwrap_or(0)
+    }
+
+    /// Whether ring `ring`'s streamed calibration is (or, before the finish, will be) done again
+    /// at the finish.
+    pub fn redone(&self, ring: usize) -> bool {
+        self.stale.get(ring).copied().unwrap_or(false)
+    }
+
     /// Returns taken in and not yet calibrated.
     pub fn pending(&self) -> usize {
         (0..self.rings)

@@ -49,18 +49,18 @@ pub struct SweepFeatures {
 }
 
 /// Selects features; owns the buffers it reuses from sweep to sweep.
+///
+/// A return's roughness and LOAM's flags read only its ring's neighbours, so they can be
+/// measured as the sweep streams in ([`Self::begin`], [`Self::extend`] after each batch the
+/// range image calibrates, then [`Self::finish`]); only the picks, whose sectors and thresholds
+/// are the sweep's, wait for its close. [`Self::select`] does it all at once; both give the
+/// same features, bit for bit.
 #[derive(Debug, Default, Clone)]
 pub struct FeatureSelector {
-    roughness: Vec<(f32, f32, u32)>,
-    /// Per place along the current ring: LOAM's rules reject it (occlusion boundaries,
-    /// surfaces seen edge-on).
-    unreliable: Vec<bool>,
-    /// Per place along the current ring: next to a chosen edge.
+    /// Per ring: its places' values and roughness, measured so far.
+    rings: Vec<RingRoughness>,
+    /// Per place along the ring being picked: next to a chosen edge.
     suppressed: Vec<bool>,
-    /// Per place along the current ring: the return's range, m.
-    ring_range: Vec<f32>,
-    /// Per place along the current ring: valid and within the feature range limits.
-    ring_usable: Vec<bool>,
     /// Plane voxel → its entry in the sweep's planes.
     voxels: FxHashMap<(i32, i32, i32), usize>,
     /// Per plane of the sweep: its return's σᴳ.
@@ -71,8 +71,28 @@ pub struct FeatureSelector {
     edge_candidates: Vec<(f32, u32)>,
     /// Per ring, the position of the last return handed to the intensity map.
     last_kept: Vec<[f32; 3]>,
-    /// One ring's calibrated values, in ring order, as [η or 0, 1 if η is known else 0].
-    ring_eta: Vec<[f32; 2]>,
+}
+
+/// One ring's values side by side, read from the sweep's per-point arrays once: a ring is every
+/// sixteenth return, so each of the passes over it would otherwise load every cache line of
+/// those arrays again. Filled place by place as the ring's returns are calibrated.
+#[derive(Debug, Default, Clone)]
+struct RingRoughness {
+    /// Per place: the return's range, m.
+    range: Vec<f32>,
+    /// Per place: valid and within the feature range limits.
+    usable: Vec<bool>,
+    /// Per place: [η or 0, 1 if η is known else 0].
+    eta: Vec<[f32; 2]>,
+    /// Per place: LOAM's rules reject it (occlusion boundaries, surfaces seen edge-on). A depth
+    /// jump flags places ahead of the last one loaded, so this may be the longer.
+    unreliable: Vec<bool>,
+    /// (σᴳ, σᴵ, place) of each usable place measured, in ring order.
+    roughness: Vec<(f32, f32, u32)>,
+    /// Σ positions over the window of the place last measured.
+    window: Vector3<f64>,
+    /// The next place to measure.
+    next: usize,
 }
 
 /// One sweep as the selection rules read it.
@@ -135,10 +155,169 @@ impl Thresholds {
     }
 }
 
+impl RingRoughness {
+    fn clear(&mut self) {
+        self.range.clear();
+        self.usable.clear();
+        self.eta.clear();
+        self.unreliable.clear();
+        self.roughness.clear();
+        self.window = Vector3::zeros();
+        self.next = 0;
+    }
+
+    /// Loads ring `r`'s places up to `ready` (those calibrated), flags them by LOAM's rules as
+    /// far as their neighbours are in, and measures the roughness of each place whose `k`
+    /// neighbours either side are in.
+    fn advance(
+        &mut self,
+        image: &RangeImage,
+        r: usize,
+        ready: usize,
+        config: &FeatureConfig,
+        k: usize,
+    ) {
+        let members = &image.ring_points[r];
+        let positions = &image.ring_positions[r];
+        let loaded = self.range.len();
+        for (w, &m) in members.iter().enumerate().take(ready).skip(loaded) {
+            let m = m as usize;
+            let (range, eta) = (image.range[m], image.eta[m]);
+            self.range.push(range);
+            self.usable
+                .push(image.valid[m] && range >= config.min_range && range <= config.max_range);
+            self.eta.push(if eta.is_finite() {
+                [eta, 1.0]
+            } else {
+                [0.0, 0.0]
+            });
+            if self.unreliable.len() <= w {
+                self.unreliable.resize(w + 1, false);
+            }
+            self.flag_unreliable(positions, w, k);
+        }
+        self.measure_roughness(positions, k);
+    }
+
+    /// LOAM's rejection rules as place `w` arrives: a depth jump from the place before makes
+    /// the `k` places on the far side unreliable (they may be occluded next sweep); the place
+    /// before, much nearer or farther than both its neighbours, lies on a surface seen edge-on.
+    fn flag_unreliable(&mut self, positions: &[Vector3<f32>], w: usize, k: usize) {
+        if w == 0 {
+            return;
+        }
+        let (ra, rb) = (self.range[w - 1], self.range[w]);
+        let gap = (positions[w - 1] - positions[w]).norm();
+        if gap > 0.1 * ra.min(rb) + 0.1 {
+            if ra > rb {
+                for flag in &mut self.unreliable[w.saturating_sub(k)..w] {
+                    *flag = true;
+                }
+            } else {
+                if self.unreliable.len() < w + k {
+                    self.unreliable.resize(w + k, false);
+                }
+                for flag in &mut self.unreliable[w..w + k] {
+                    *flag = true;
+                }
+            }
+        }
+        if w >= 2 {
+            let (before, at, after) = (self.range[w - 2], self.range[w - 1], rb);
+            if (before - at).abs() > 0.02 * at && (after - at).abs() > 0.02 * at {
+                self.unreliable[w - 1] = true;
+            }
+        }
+    }
+
+    /// Each usable place's (σᴳ, σᴵ, place) over a contiguous window of `k` neighbours, for the
+    /// places whose window is loaded.
+    fn measure_roughness(&mut self, positions: &[Vector3<f32>], k: usize) {
+        // Σ positions over the window [w − k, w + k], slid along the ring: in f64, so the
+        // additions and removals along a ring of 1800 returns leave no drift at f32's scale.
+        let wide = |v: &Vector3<f32>| v.cast::<f64>();
+        self.next = self.next.max(k);
+        while self.next + k < self.range.len() {
+            let w = self.next;
+            self.next += 1;
+            if w == k {
+                self.window = positions[..2 * k].iter().map(wide).sum();
+            }
+            self.window += wide(&positions[w + k]);
+            if w > k {
+                self.window -= wide(&positions[w - k - 1]);
+            }
+            if !self.usable[w] {
+                continue;
+            }
+            let range = self.range[w];
+            let p = positions[w];
+            // The window must be contiguous: no gap wider than a few steps.
+            let span = (positions[w - k] - positions[w + k]).norm();
+            if span > (2 * k) as f32 * 0.02 * range + 0.5 {
+                continue;
+            }
+            // Σⱼ(pⱼ − pᵢ) over the 2k neighbours.
+            let sum = (self.window - wide(&p) * (2 * k + 1) as f64).cast::<f32>();
+            let [ei, known] = self.eta[w];
+            let mut eta_diff = 0f32;
+            let mut eta_count = 0f32;
+            if known > 0.0 {
+                // Branch-free over the whole window: an unknown η adds 0 to both sums; the
+                // return itself adds |ei − ei| = 0 and one to the count, taken back after.
+                for &[ej, known] in &self.eta[w - k..w + k + 1] {
+                    eta_diff += known * (ej - ei).abs();
+                    eta_count += known;
+                }
+                eta_count -= 1.0;
+            }
+            let geometric = sum.norm() / ((2 * k) as f32 * range);
+            let intensity = if eta_count > 0.0 {
+                eta_diff / (eta_count * 100.0)
+            } else {
+                0.0
+            };
+            self.roughness.push((geometric, intensity, w as u32));
+        }
+    }
+}
+
 impl FeatureSelector {
-    /// Selects the features of `scan`, whose returns `image` has calibrated, into `out`: the
-    /// intensity map's input, then ring by ring the rules below, then the intensity points.
+    /// Opens a sweep of `rings` rings, dropping whatever was measured before.
+    pub fn begin(&mut self, rings: usize) {
+        self.rings.resize_with(rings, RingRoughness::default);
+        for ring in &mut self.rings {
+            ring.clear();
+        }
+    }
+
+    /// Measures the roughness of the returns `image` has calibrated since the last call. A ring
+    /// the image will calibrate again is left to [`Self::finish`].
+    pub fn extend(&mut self, image: &RangeImage, config: &FeatureConfig) {
+        let k = config.neighbours.max(1);
+        for (r, ring) in self.rings.iter_mut().enumerate().take(image.rings()) {
+            if !image.redone(r) {
+                ring.advance(image, r, image.calibrated_in_ring(r), config, k);
+            }
+        }
+    }
+
+    /// Selects the features of `scan`, whose returns `image` has calibrated, into `out`.
     pub fn select(
+        &mut self,
+        scan: &Scan<'_>,
+        image: &RangeImage,
+        config: &FeatureConfig,
+        out: &mut SweepFeatures,
+    ) {
+        self.begin(image.rings());
+        self.finish(scan, image, config, out);
+    }
+
+    /// [`Self::select`], continuing from what [`Self::extend`] measured of `image` since
+    /// [`Self::begin`]: the intensity map's input, then ring by ring the rest of the roughness
+    /// and the picks below, then the intensity points.
+    pub fn finish(
         &mut self,
         scan: &Scan<'_>,
         image: &RangeImage,
@@ -164,33 +343,49 @@ impl FeatureSelector {
         let k = config.neighbours.max(1);
         let limits = Thresholds::new(config, image, k);
         let mut last_voxel = None;
-        for (members, positions) in image.ring_points.iter().zip(&image.ring_positions) {
+        if self.rings.len() != image.rings() {
+            self.begin(image.rings());
+        }
+        let mut rings = std::mem::take(&mut self.rings);
+        for (r, (ring, members)) in rings.iter_mut().zip(&image.ring_points).enumerate() {
+            if image.redone(r) || ring.range.len() > members.len() {
+                ring.clear();
+            }
+            ring.advance(image, r, members.len(), config, k);
             if members.len() < 2 * k + 1 {
                 continue;
             }
-            self.load_ring(&sweep, members);
-            self.flag_unreliable(positions, k);
-            self.measure_roughness(positions, k);
+            self.suppressed.clear();
+            self.suppressed.resize(members.len(), false);
             let sectors = config.sectors.max(1);
-            let per = self.roughness.len().div_ceil(sectors).max(1);
+            let per = ring.roughness.len().div_ceil(sectors).max(1);
             for sector in 0..sectors {
                 let lo = sector * per;
-                let hi = ((sector + 1) * per).min(self.roughness.len());
+                let hi = ((sector + 1) * per).min(ring.roughness.len());
                 if lo >= hi {
                     continue;
                 }
-                self.pick_edges(&sweep, &limits, members, lo..hi, k, out);
+                self.pick_edges(&sweep, &limits, (ring, members), lo..hi, k, out);
                 self.pick_planes_and_intensity_candidates(
                     &sweep,
                     &limits,
-                    (members, positions),
+                    (ring, members, &image.ring_positions[r]),
                     lo..hi,
                     &mut last_voxel,
                     out,
                 );
             }
         }
+        self.rings = rings;
         self.keep_strongest_intensity(&sweep, out);
+    }
+
+    /// Every ring's (σᴳ, σᴵ, place) of the sweep last selected, ring after ring.
+    #[cfg(test)]
+    pub(crate) fn roughness(&self) -> impl Iterator<Item = (f32, f32, u32)> + '_ {
+        self.rings
+            .iter()
+            .flat_map(|ring| ring.roughness.iter().copied())
     }
 
     /// The intensity map's input: valid calibrated returns, `intensity_map_spacing` apart along
@@ -217,113 +412,6 @@ impl FeatureSelector {
         }
     }
 
-    /// The ring's values side by side, read from the sweep's per-point arrays once: a ring is
-    /// every sixteenth return, so each of the passes over it would otherwise load every cache
-    /// line of those arrays again. Clears the ring's flags and roughness.
-    fn load_ring(&mut self, sweep: &SweepView<'_>, members: &[u32]) {
-        let image = sweep.image;
-        self.roughness.clear();
-        self.ring_range.clear();
-        self.ring_usable.clear();
-        self.ring_eta.clear();
-        for &m in members {
-            let m = m as usize;
-            let eta = image.eta[m];
-            self.ring_range.push(image.range[m]);
-            self.ring_usable.push(sweep.usable(m));
-            self.ring_eta.push(if eta.is_finite() {
-                [eta, 1.0]
-            } else {
-                [0.0, 0.0]
-            });
-        }
-        for flags in [&mut self.unreliable, &mut self.suppressed] {
-            flags.clear();
-            flags.resize(members.len(), false);
-        }
-    }
-
-    /// LOAM's rejection rules: a depth jump to a neighbour makes the `k` returns on the far
-    /// side unreliable (they may be occluded next sweep); a return much nearer or farther than
-    /// both neighbours lies on a surface seen edge-on.
-    fn flag_unreliable(&mut self, positions: &[Vector3<f32>], k: usize) {
-        let ring_range = &self.ring_range;
-        let len = ring_range.len();
-        for w in 1..len {
-            let (ra, rb) = (ring_range[w - 1], ring_range[w]);
-            let gap = (positions[w - 1] - positions[w]).norm();
-            if gap > 0.1 * ra.min(rb) + 0.1 {
-                let (far_start, step): (usize, isize) = if ra > rb { (w - 1, -1) } else { (w, 1) };
-                for s in 0..k {
-                    let idx = far_start as isize + step * s as isize;
-                    if let Some(flag) = usize::try_from(idx)
-                        .ok()
-                        .and_then(|x| self.unreliable.get_mut(x))
-                    {
-                        *flag = true;
-                    }
-                }
-            }
-        }
-        for w in 1..len - 1 {
-            let rb = ring_range[w];
-            if (ring_range[w - 1] - rb).abs() > 0.02 * rb
-                && (ring_range[w + 1] - rb).abs() > 0.02 * rb
-            {
-                self.unreliable[w] = true;
-            }
-        }
-    }
-
-    /// Each usable return's (σᴳ, σᴵ, place along the ring) over a contiguous window of `k`
-    /// neighbours each side.
-    fn measure_roughness(&mut self, positions: &[Vector3<f32>], k: usize) {
-        let ring_range = &self.ring_range;
-        let ring_eta = &self.ring_eta;
-        let len = ring_range.len();
-        // Σ positions over the window [w − k, w + k], slid along the ring: in f64, so the
-        // additions and removals along a ring of 1800 returns leave no drift at f32's scale.
-        let wide = |v: &Vector3<f32>| v.cast::<f64>();
-        let mut window: Vector3<f64> = positions[..2 * k].iter().map(wide).sum();
-        for w in k..len - k {
-            window += wide(&positions[w + k]);
-            if w > k {
-                window -= wide(&positions[w - k - 1]);
-            }
-            if !self.ring_usable[w] {
-                continue;
-            }
-            let range = ring_range[w];
-            let p = positions[w];
-            // The window must be contiguous: no gap wider than a few steps.
-            let span = (positions[w - k] - positions[w + k]).norm();
-            if span > (2 * k) as f32 * 0.02 * range + 0.5 {
-                continue;
-            }
-            // Σⱼ(pⱼ − pᵢ) over the 2k neighbours.
-            let sum = (window - wide(&p) * (2 * k + 1) as f64).cast::<f32>();
-            let [ei, known] = ring_eta[w];
-            let mut eta_diff = 0f32;
-            let mut eta_count = 0f32;
-            if known > 0.0 {
-                // Branch-free over the whole window: an unknown η adds 0 to both sums; the
-                // return itself adds |ei − ei| = 0 and one to the count, taken back after.
-                for &[ej, known] in &ring_eta[w - k..w + k + 1] {
-                    eta_diff += known * (ej - ei).abs();
-                    eta_count += known;
-                }
-                eta_count -= 1.0;
-            }
-            let geometric = sum.norm() / ((2 * k) as f32 * range);
-            let intensity = if eta_count > 0.0 {
-                eta_diff / (eta_count * 100.0)
-            } else {
-                0.0
-            };
-            self.roughness.push((geometric, intensity, w as u32));
-        }
-    }
-
     /// A sector's edges: only reliable returns whose combined σ clears the threshold by three
     /// times the noise can be one, so only those are ranked (ties by ring order, so the choice
     /// is deterministic); the roughest `edges_per_sector` are taken, each suppressing its `k`
@@ -332,17 +420,17 @@ impl FeatureSelector {
         &mut self,
         sweep: &SweepView<'_>,
         limits: &Thresholds,
-        members: &[u32],
+        (ring, members): (&RingRoughness, &[u32]),
         sector: std::ops::Range<usize>,
         k: usize,
         out: &mut SweepFeatures,
     ) {
         let config = sweep.config;
         let combined = |g: f32, i: f32| config.geometric_weight * g + config.intensity_weight * i;
-        let (ring_range, unreliable) = (&self.ring_range, &self.unreliable);
+        let (ring_range, unreliable) = (&ring.range, &ring.unreliable);
         self.edge_candidates.clear();
         self.edge_candidates.extend(
-            self.roughness[sector]
+            ring.roughness[sector]
                 .iter()
                 .map(|&(g, i, w)| (combined(g, i), w))
                 .filter(|&(sigma, w)| {
@@ -379,18 +467,18 @@ impl FeatureSelector {
         &mut self,
         sweep: &SweepView<'_>,
         limits: &Thresholds,
-        (members, positions): (&[u32], &[Vector3<f32>]),
+        (ring, members, positions): (&RingRoughness, &[u32], &[Vector3<f32>]),
         sector: std::ops::Range<usize>,
         last_voxel: &mut Option<((i32, i32, i32), usize)>,
         out: &mut SweepFeatures,
     ) {
         let config = sweep.config;
-        for &(g, rough_i, w) in &self.roughness[sector] {
+        for &(g, rough_i, w) in &ring.roughness[sector] {
             let (w, i) = (w as usize, members[w as usize] as usize);
-            if self.unreliable[w] {
+            if ring.unreliable[w] {
                 continue;
             }
-            if g < limits.plane + limits.noise(self.ring_range[w]) && !self.suppressed[w] {
+            if g < limits.plane + limits.noise(ring.range[w]) && !self.suppressed[w] {
                 let p = positions[w];
                 let key = (
                     (p.x * limits.per_voxel).floor() as i32,
@@ -422,7 +510,7 @@ impl FeatureSelector {
                     }
                 }
             }
-            if rough_i > config.intensity_roughness_threshold && self.ring_eta[w][1] > 0.0 {
+            if rough_i > config.intensity_roughness_threshold && ring.eta[w][1] > 0.0 {
                 self.candidates.push((rough_i, i as u32));
             }
         }

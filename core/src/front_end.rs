@@ -1,7 +1,8 @@
 //! Steps 1–2 of the method for one sweep: intensity calibration (the range image, normals and
 //! incidence angles) and the selection of edge, plane and intensity points. Independent of the
-//! motion, so it runs on a thread of its own ahead of the odometry. The calibration can also
-//! run as the sweep streams in, so that little of it remains once the last return is in.
+//! motion, so it runs on a thread of its own ahead of the odometry. The calibration and the
+//! returns' roughness can also be worked out as the sweep streams in, so that once the last
+//! return is in only the sweep's end and the picks of features remain.
 
 use crate::calibration::RangeImage;
 use crate::config::OdometryConfig;
@@ -31,14 +32,16 @@ impl FrontEnd {
     /// was streamed before.
     pub fn begin(&mut self, rings: usize) {
         self.image.begin(rings);
+        self.selector.begin(self.image.rings());
         self.streamed = None;
     }
 
     /// Streams the open sweep's next returns in, in firing order, calibrating those whose
-    /// neighbourhood is in.
+    /// neighbourhood is in and measuring the roughness of those whose neighbours are calibrated.
     pub fn stream(&mut self, points: &[ScanPoint]) {
         if let Some(&last) = points.last() {
             self.image.extend(points, &self.config.calibration);
+            self.selector.extend(&self.image, &self.config.features);
             self.streamed = Some(last);
         }
     }
@@ -60,12 +63,14 @@ impl FrontEnd {
         if continues {
             self.image.extend(&scan.points[streamed..], calibration);
             self.image.finish(calibration);
+            self.selector
+                .finish(scan, &self.image, &self.config.features, out);
         } else {
             self.image.build(scan, calibration);
+            self.selector
+                .select(scan, &self.image, &self.config.features, out);
         }
         self.streamed = None;
-        self.selector
-            .select(scan, &self.image, &self.config.features, out);
     }
 
     /// How many rings of the sweep last processed had been streamed in and had to be
@@ -158,7 +163,8 @@ mod tests {
             .collect()
     }
 
-    /// What a front end made of its last sweep, bit for bit.
+    /// What a front end made of its last sweep, bit for bit: each return's η and normal, each
+    /// ring's roughness, the features.
     fn outcome(front_end: &FrontEnd, features: &SweepFeatures, n: usize) -> Vec<Vec<[u32; 9]>> {
         let calibrated = (0..n)
             .map(|i| {
@@ -170,8 +176,18 @@ mod tests {
                 row
             })
             .collect();
+        let roughness = front_end
+            .selector
+            .roughness()
+            .map(|(g, i, w)| {
+                let mut row = [0; 9];
+                row[..3].copy_from_slice(&[g.to_bits(), i.to_bits(), w]);
+                row
+            })
+            .collect();
         vec![
             calibrated,
+            roughness,
             bits(&features.edges),
             bits(&features.planes),
             bits(&features.intensity),
