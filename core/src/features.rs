@@ -69,8 +69,8 @@ pub struct FeatureSelector {
     /// A sector's edge candidates (reliable, combined σ clear of the threshold by three times
     /// the noise), roughest first.
     edge_candidates: Vec<(f32, u32)>,
-    /// Per ring, the position of the last return handed to the intensity map.
-    last_kept: Vec<[f32; 3]>,
+    /// Per return of the sweep: handed to the intensity map.
+    kept: Vec<bool>,
 }
 
 /// One ring's values side by side, read from the sweep's per-point arrays once: a ring is every
@@ -93,6 +93,8 @@ struct RingRoughness {
     window: Vector3<f64>,
     /// The next place to measure.
     next: usize,
+    /// The position of the last return handed to the intensity map.
+    last_kept: [f32; 3],
 }
 
 /// One sweep as the selection rules read it.
@@ -114,14 +116,6 @@ impl SweepView<'_> {
             normal: self.image.normal[i],
             point: i as u32,
         }
-    }
-
-    /// Return `i` is valid and within the feature range limits.
-    fn usable(&self, i: usize) -> bool {
-        let image = self.image;
-        image.valid[i]
-            && image.range[i] >= self.config.min_range
-            && image.range[i] <= self.config.max_range
     }
 }
 
@@ -164,28 +158,41 @@ impl RingRoughness {
         self.roughness.clear();
         self.window = Vector3::zeros();
         self.next = 0;
+        self.last_kept = [f32::INFINITY; 3];
     }
 
-    /// Loads ring `r`'s places up to `ready` (those calibrated), flags them by LOAM's rules as
-    /// far as their neighbours are in, and measures the roughness of each place whose `k`
-    /// neighbours either side are in.
+    /// Loads ring `r`'s places up to `ready` (those calibrated), marks in `kept` those handed
+    /// to the intensity map, flags them by LOAM's rules as far as their neighbours are in, and
+    /// measures the roughness of each place whose `k` neighbours either side are in.
     fn advance(
         &mut self,
         image: &RangeImage,
-        r: usize,
-        ready: usize,
+        (r, ready): (usize, usize),
         config: &FeatureConfig,
         k: usize,
+        kept: &mut [bool],
     ) {
+        let spacing_sq = config.intensity_map_spacing * config.intensity_map_spacing;
         let members = &image.ring_points[r];
         let positions = &image.ring_positions[r];
         let loaded = self.range.len();
         for (w, &m) in members.iter().enumerate().take(ready).skip(loaded) {
             let m = m as usize;
             let (range, eta) = (image.range[m], image.eta[m]);
+            let usable = image.valid[m] && range >= config.min_range && range <= config.max_range;
             self.range.push(range);
-            self.usable
-                .push(image.valid[m] && range >= config.min_range && range <= config.max_range);
+            self.usable.push(usable);
+            // The intensity map's input: valid calibrated returns, `intensity_map_spacing`
+            // apart along the ring.
+            if usable && eta.is_finite() {
+                let p = positions[w];
+                let last = self.last_kept;
+                let [dx, dy, dz] = [p.x - last[0], p.y - last[1], p.z - last[2]];
+                if dx * dx + dy * dy + dz * dz >= spacing_sq {
+                    self.last_kept = [p.x, p.y, p.z];
+                    kept[m] = true;
+                }
+            }
             self.eta.push(if eta.is_finite() {
                 [eta, 1.0]
             } else {
@@ -289,15 +296,18 @@ impl FeatureSelector {
         for ring in &mut self.rings {
             ring.clear();
         }
+        self.kept.clear();
     }
 
     /// Measures the roughness of the returns `image` has calibrated since the last call. A ring
     /// the image will calibrate again is left to [`Self::finish`].
     pub fn extend(&mut self, image: &RangeImage, config: &FeatureConfig) {
         let k = config.neighbours.max(1);
+        self.kept.resize(image.len(), false);
         for (r, ring) in self.rings.iter_mut().enumerate().take(image.rings()) {
             if !image.redone(r) {
-                ring.advance(image, r, image.calibrated_in_ring(r), config, k);
+                let ready = image.calibrated_in_ring(r);
+                ring.advance(image, (r, ready), config, k, &mut self.kept);
             }
         }
     }
@@ -315,8 +325,8 @@ impl FeatureSelector {
     }
 
     /// [`Self::select`], continuing from what [`Self::extend`] measured of `image` since
-    /// [`Self::begin`]: the intensity map's input, then ring by ring the rest of the roughness
-    /// and the picks below, then the intensity points.
+    /// [`Self::begin`]: ring by ring the rest of the roughness and the picks below, then the
+    /// intensity points and the intensity map's input.
     pub fn finish(
         &mut self,
         scan: &Scan<'_>,
@@ -338,20 +348,22 @@ impl FeatureSelector {
             image,
             config,
         };
-        self.thin_for_intensity_map(&sweep, out);
-
         let k = config.neighbours.max(1);
         let limits = Thresholds::new(config, image, k);
         let mut last_voxel = None;
         if self.rings.len() != image.rings() {
             self.begin(image.rings());
         }
+        self.kept.resize(image.len(), false);
         let mut rings = std::mem::take(&mut self.rings);
         for (r, (ring, members)) in rings.iter_mut().zip(&image.ring_points).enumerate() {
             if image.redone(r) || ring.range.len() > members.len() {
                 ring.clear();
+                for &m in members {
+                    self.kept[m as usize] = false;
+                }
             }
-            ring.advance(image, r, members.len(), config, k);
+            ring.advance(image, (r, members.len()), config, k, &mut self.kept);
             if members.len() < 2 * k + 1 {
                 continue;
             }
@@ -378,6 +390,12 @@ impl FeatureSelector {
         }
         self.rings = rings;
         self.keep_strongest_intensity(&sweep, out);
+        // In firing order, as the intensity map takes them.
+        if scan.rings > 0 {
+            for (i, _) in self.kept.iter().enumerate().filter(|(_, &kept)| kept) {
+                out.calibrated.push(sweep.feature(i));
+            }
+        }
     }
 
     /// Every ring's (σᴳ, σᴵ, place) of the sweep last selected, ring after ring.
@@ -386,30 +404,6 @@ impl FeatureSelector {
         self.rings
             .iter()
             .flat_map(|ring| ring.roughness.iter().copied())
-    }
-
-    /// The intensity map's input: valid calibrated returns, `intensity_map_spacing` apart along
-    /// each ring. Firing order is azimuth order within each ring, so the last return kept per
-    /// ring is the one to measure the spacing from.
-    fn thin_for_intensity_map(&mut self, sweep: &SweepView<'_>, out: &mut SweepFeatures) {
-        let spacing = sweep.config.intensity_map_spacing;
-        let spacing_sq = spacing * spacing;
-        self.last_kept.clear();
-        self.last_kept.resize(sweep.scan.rings, [f32::INFINITY; 3]);
-        for (i, p) in sweep.scan.points.iter().enumerate() {
-            if !sweep.usable(i) || !sweep.image.eta[i].is_finite() {
-                continue;
-            }
-            let Some(last) = self.last_kept.get_mut(usize::from(p.ring)) else {
-                continue;
-            };
-            let [dx, dy, dz] = [0, 1, 2].map(|a| p.position[a] - last[a]);
-            if dx * dx + dy * dy + dz * dz < spacing_sq {
-                continue;
-            }
-            *last = p.position;
-            out.calibrated.push(sweep.feature(i));
-        }
     }
 
     /// A sector's edges: only reliable returns whose combined σ clears the threshold by three
