@@ -300,4 +300,51 @@ mod tests {
         assert!(indices(start.admit(arrival(0, true))).is_empty());
         assert_eq!(start.finish().map(|a| a.sweep.index), Some(0));
     }
+
+    #[test]
+    fn only_the_start_of_a_newer_sweep_streams_in() {
+        let returns = |sweep: u64, offset: usize, n: usize| Returns {
+            sweep,
+            offset,
+            points: (0..n)
+                .map(|i| ScanPoint {
+                    position: [5.0, i as f32 * 0.01, 0.0],
+                    time_ns: (offset + i) as u64 * 1000,
+                    reflectivity: 30,
+                    ring: (i % 16) as u8,
+                })
+                .collect(),
+        };
+        let mut front_end = FrontEnd::new(&OdometryConfig::default());
+        let mut open = OpenSweep::default();
+
+        // Sweep 5 from its start, in two batches, then closed: what was streamed is used.
+        open.stream(&returns(5, 0, 32), &mut front_end);
+        open.stream(&returns(5, 32, 48), &mut front_end);
+        assert_eq!(front_end.streamed(), 80);
+        assert!(open.closes(5));
+
+        // A late batch of the sweep closed, an older sweep's, or a sweep joined midway: dropped.
+        for (sweep, offset) in [(5, 80), (4, 0), (6, 16)] {
+            open.stream(&returns(sweep, offset, 16), &mut front_end);
+            assert_eq!(front_end.streamed(), 80, "sweep {sweep} from {offset}");
+        }
+
+        // Sweep 6 from its start, then a batch missed: the rest of it is not streamed, and it
+        // is processed whole at its close.
+        open.stream(&returns(6, 0, 32), &mut front_end);
+        assert_eq!(front_end.streamed(), 32);
+        open.stream(&returns(6, 48, 16), &mut front_end);
+        open.stream(&returns(6, 64, 16), &mut front_end);
+        assert_eq!(front_end.streamed(), 0);
+        assert!(!open.closes(6));
+
+        // Sweep 7 closes while 8 streams in: 7 was not streamed, and 8's next batches are not
+        // taken (it is processed whole).
+        open.stream(&returns(8, 0, 16), &mut front_end);
+        assert!(!open.closes(7));
+        open.stream(&returns(8, 16, 16), &mut front_end);
+        assert!(open.streaming.is_none());
+        assert!(!open.closes(8));
+    }
 }
