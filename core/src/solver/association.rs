@@ -10,9 +10,10 @@ pub(super) struct Model {
     pub(super) point: Vector3<f64>,
     pub(super) center: Vector3<f64>,
     pub(super) shape: Shape,
-    /// The residual's weight: its noise at a frontal surface over its noise here, squared
-    /// (see [`SolverConfig::angular_noise`]).
-    pub(super) weight: f64,
+    /// The residual's scale: the square root of its weight, its noise at a frontal surface
+    /// over its noise here squared (see [`residual_weight`]). Taken once here rather than in
+    /// every Levenberg–Marquardt trial that evaluates the residual.
+    pub(super) scale: f64,
 }
 
 /// What a neighbourhood was fitted as.
@@ -142,7 +143,7 @@ pub(super) fn associate(
         point: *p,
         center,
         shape,
-        weight: residual_weight(pose, p, &shape, config),
+        scale: residual_weight(pose, p, &shape, config).sqrt(),
     })
 }
 

@@ -106,19 +106,19 @@ pub(super) fn build(
     s
 }
 
-/// A plane residual at `q` and its Jacobian's row, both scaled by the residual's weight:
+/// A plane residual at `q` and its Jacobian's row, both scaled by [`Model::scale`]:
 /// ∂q/∂δ = [−[q]×, I], so ∂e/∂δ = nᵀ·[−[q]×, I] = [(q × n)ᵀ, nᵀ].
 pub(super) fn plane_row(m: &Model, n: &Vector3<f64>, q: &Vector3<f64>) -> ([f64; 6], f64) {
-    let scale = m.weight.sqrt();
+    let scale = m.scale;
     let e = scale * n.dot(&(q - m.center));
     let arm = scale * q.cross(n);
     let n = scale * n;
     ([arm.x, arm.y, arm.z, n.x, n.y, n.z], e)
 }
 
-/// A line residual's projection: onto the line's normal space, scaled by the residual's weight.
+/// A line residual's projection: onto the line's normal space, scaled by [`Model::scale`].
 pub(super) fn line_projection(m: &Model, d: &Vector3<f64>) -> Matrix3<f64> {
-    m.weight.sqrt() * (Matrix3::identity() - d * d.transpose())
+    m.scale * (Matrix3::identity() - d * d.transpose())
 }
 
 /// The rows of a line residual's Jacobian at `q`: ∂q/∂δ = [−[q]×, I], so ∂e/∂δ = P·[−[q]×, I],

@@ -458,7 +458,7 @@ mod jacobians {
                 point: Vector3::new(1.0, 2.0, 0.5),
                 center: Vector3::new(0.8, 2.5, 0.4),
                 shape,
-                weight: 0.37,
+                scale: 0.37_f64.sqrt(),
             };
             let map = IntensityMap::new(&IntensityMapConfig::default());
             let input = AlignmentInput::default();
