@@ -2,8 +2,9 @@
 //! σ = wᴳσᴳ + wᴵσᴵ, with σᴳ LOAM's range-invariant curvature `|Σⱼ(pⱼ − pᵢ)| / (2k·|pᵢ|)` and σᴵ
 //! the mean |ηⱼ − ηᵢ| / 100 of the calibrated reflectivity. Each ring is split into sectors; in
 //! each, the roughest returns become edges (neighbours suppressed), the geometrically smooth ones
-//! planes (thinned by a voxel grid), and the ones with the largest σᴵ intensity points. LOAM's
-//! rejection rules drop returns at occlusion boundaries and on surfaces seen edge-on.
+//! planes (thinned by a voxel grid, then to a cap per sweep), and the ones with the largest σᴵ
+//! intensity points. LOAM's rejection rules drop returns at occlusion boundaries and on surfaces
+//! seen edge-on.
 
 use std::collections::hash_map::Entry;
 
@@ -390,6 +391,7 @@ impl FeatureSelector {
         }
         self.rings = rings;
         self.keep_strongest_intensity(&sweep, out);
+        keep_evenly(&mut out.planes, config.max_planes);
         // In firing order, as the intensity map takes them.
         if scan.rings > 0 {
             for (i, _) in self.kept.iter().enumerate().filter(|(_, &kept)| kept) {
@@ -524,6 +526,20 @@ impl FeatureSelector {
     }
 }
 
+/// Keeps at most `cap` of `features` (all of them for a cap of 0), spread evenly over them in
+/// their order: of every `len / cap` in a row, the last.
+fn keep_evenly(features: &mut Vec<Feature>, cap: usize) {
+    let len = features.len();
+    if cap == 0 || len <= cap {
+        return;
+    }
+    let mut i = 0;
+    features.retain(|_| {
+        i += 1;
+        (i - 1) * cap / len != i * cap / len
+    });
+}
+
 /// The spread (1σ) of the σᴳ that range noise alone produces at range `r` with `k` neighbours
 /// each side. In `Σⱼ(pⱼ − pᵢ)` the return's own noise counts 2k times and each neighbour's once,
 /// so the sum's noise is σ·√(2k + 4k²) (the rays in a window are nearly parallel, so the noise
@@ -605,6 +621,36 @@ mod tests {
             assert!(at_corner, "geometry-only edge away from the corner: {e:?}");
         }
         assert!(f.edges.iter().all(|e| e.dt <= 0.0));
+    }
+
+    #[test]
+    fn planes_over_the_cap_are_thinned_evenly() {
+        let all = corner_features(FeatureConfig {
+            max_planes: 0,
+            ..FeatureConfig::default()
+        });
+        let n = all.planes.len();
+        assert!(n >= 40, "{n} planes");
+        let capped = corner_features(FeatureConfig {
+            max_planes: n / 4,
+            ..FeatureConfig::default()
+        });
+        assert_eq!(capped.planes.len(), n / 4);
+        // The kept ones are the voxels' own, in their order, one of about every four.
+        let at = |f: &Feature| all.planes.iter().position(|a| a.position == f.position);
+        let indices: Vec<usize> = capped.planes.iter().map(|f| at(f).unwrap()).collect();
+        for pair in indices.windows(2) {
+            assert!((3..=5).contains(&(pair[1] - pair[0])), "{indices:?}");
+        }
+        assert_eq!(indices.last(), Some(&(n - 1)));
+        // Under the cap nothing changes; the rest of the selection never does.
+        let roomy = corner_features(FeatureConfig {
+            max_planes: n,
+            ..FeatureConfig::default()
+        });
+        assert_eq!(roomy.planes, all.planes);
+        assert_eq!(capped.edges, all.edges);
+        assert_eq!(capped.intensity, all.intensity);
     }
 
     #[test]
