@@ -10,9 +10,9 @@ pub(super) struct Model {
     pub(super) point: Vector3<f64>,
     pub(super) center: Vector3<f64>,
     pub(super) shape: Shape,
-    /// The residual's scale: the square root of its weight, its noise at a frontal surface
-    /// over its noise here squared (see [`residual_weight`]). Taken once here rather than in
-    /// every Levenberg–Marquardt trial that evaluates the residual.
+    /// The residual's scale: the square root of its weight (its noise at a frontal surface over
+    /// its noise here, squared; see [`residual_weight`]), taken once at association rather than
+    /// in every Levenberg–Marquardt trial.
     pub(super) scale: f64,
 }
 
