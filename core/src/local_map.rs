@@ -126,8 +126,10 @@ impl LocalMap {
         out.clear();
         let k = k.clamp(1, MAX_NEIGHBOURS);
         let max_sq = max_distance * max_distance;
-        // A small sorted buffer of (distance², point) on the stack.
-        let mut best = [(f32::INFINITY, Vector3::zeros()); MAX_NEIGHBOURS];
+        // The nearest so far, sorted: distances² (infinity past `found`, so the k-th is a bound
+        // from the start) and each one's place in `storage`, read only for the answer.
+        let mut best_sq = [f32::INFINITY; MAX_NEIGHBOURS];
+        let mut best_at = [0u32; MAX_NEIGHBOURS];
         let mut found = 0;
         let c = self.key(p);
         // The query's offset inside its cell gives each neighbouring cell's box distance per
@@ -149,44 +151,48 @@ impl LocalMap {
             for &(dy, by) in &ly {
                 for &(dz, bz) in &lz {
                     let box_sq = bx + by + bz;
-                    if box_sq > max_sq || (found == k && box_sq >= best[k - 1].0) {
+                    if box_sq > max_sq || box_sq >= best_sq[k - 1] {
                         continue;
                     }
                     let Some(&slot) = self.index.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
                         continue;
                     };
-                    let [xs, ys, zs] = self.slot_coordinates(slot as usize);
-                    for start in (0..xs.len()).step_by(CHUNK) {
-                        let end = (start + CHUNK).min(xs.len());
+                    let slot = slot as usize;
+                    let [xs, ys, zs] = self.slot_coordinates(slot);
+                    let chunks = xs.chunks(CHUNK).zip(ys.chunks(CHUNK)).zip(zs.chunks(CHUNK));
+                    for (chunk, ((xs, ys), zs)) in chunks.enumerate() {
+                        let first = slot * self.per_cell + chunk * CHUNK;
                         // Distances first, in a loop the compiler vectorises; ranking after.
-                        let mut d = [f32::INFINITY; CHUNK];
-                        for (j, d) in d.iter_mut().enumerate().take(end - start) {
-                            let (dx, dy, dz) = (
-                                xs[start + j] - p.x,
-                                ys[start + j] - p.y,
-                                zs[start + j] - p.z,
-                            );
+                        let mut d = [0.0f32; CHUNK];
+                        let d = &mut d[..xs.len()];
+                        for (((d, x), y), z) in d.iter_mut().zip(xs).zip(ys).zip(zs) {
+                            let (dx, dy, dz) = (x - p.x, y - p.y, z - p.z);
                             *d = dx * dx + dy * dy + dz * dz;
                         }
-                        for (j, &d) in d.iter().enumerate().take(end - start) {
-                            if d > max_sq || (found == k && d >= best[k - 1].0) {
+                        for (j, &d) in d.iter().enumerate() {
+                            if d > max_sq || d >= best_sq[k - 1] {
                                 continue;
                             }
                             // Insertion into the sorted prefix.
-                            let q = Vector3::new(xs[start + j], ys[start + j], zs[start + j]);
                             let mut at = found.min(k - 1);
-                            while at > 0 && best[at - 1].0 > d {
-                                best[at] = best[at - 1];
+                            while at > 0 && best_sq[at - 1] > d {
+                                best_sq[at] = best_sq[at - 1];
+                                best_at[at] = best_at[at - 1];
                                 at -= 1;
                             }
-                            best[at] = (d, q);
+                            best_sq[at] = d;
+                            best_at[at] = (first + j) as u32;
                             found = (found + 1).min(k);
                         }
                     }
                 }
             }
         }
-        out.extend(best[..found].iter().map(|(_, q)| *q));
+        let [xs, ys, zs] = &self.storage;
+        out.extend(best_at[..found].iter().map(|&i| {
+            let i = i as usize;
+            Vector3::new(xs[i], ys[i], zs[i])
+        }));
     }
 
     /// Drops cells farther than `radius` from `center` (per axis). The kept cells keep their
