@@ -671,6 +671,9 @@ fn clamp_twist(v: Vector6<f64>) -> Vector6<f64> {
 struct Deskew<'a> {
     twist: Vector6<f64>,
     cache: &'a DeskewCache,
+    /// The last bucket looked up and its exponential: a sweep's returns come in firing order,
+    /// a few dozen to a bucket, so most need no look-up in the cache.
+    last: std::cell::Cell<Option<(f64, Isometry3<f64>)>>,
 }
 
 /// The exponentials of one twist per bucket of `dt`, kept between calls so that a deskew
@@ -693,6 +696,7 @@ impl<'a> Deskew<'a> {
         Self {
             twist: *twist,
             cache,
+            last: std::cell::Cell::new(None),
         }
     }
 
@@ -711,19 +715,24 @@ impl<'a> Deskew<'a> {
             return p.coords;
         }
         let bucket = (-f64::from(dt) / DESKEW_BUCKET_S).round();
-        let transform = if bucket >= 0.0 && (bucket as usize) < DESKEW_BUCKETS {
-            let mut cache = self.cache.0.borrow_mut();
-            // Held for another twist (or never filled): start over for this one.
-            if cache.twist != self.twist || cache.by_bucket.len() != DESKEW_BUCKETS {
-                cache.twist = self.twist;
-                cache.by_bucket.clear();
-                cache.by_bucket.resize(DESKEW_BUCKETS, None);
-            }
-            *cache.by_bucket[bucket as usize]
-                .get_or_insert_with(|| exp(&(self.twist * (-bucket * DESKEW_BUCKET_S))))
-        } else {
-            exp(&(self.twist * f64::from(dt)))
-        };
+        let transform =
+            if let Some((_, transform)) = self.last.get().filter(|&(last, _)| last == bucket) {
+                transform
+            } else if bucket >= 0.0 && (bucket as usize) < DESKEW_BUCKETS {
+                let mut cache = self.cache.0.borrow_mut();
+                // Held for another twist (or never filled): start over for this one.
+                if cache.twist != self.twist || cache.by_bucket.len() != DESKEW_BUCKETS {
+                    cache.twist = self.twist;
+                    cache.by_bucket.clear();
+                    cache.by_bucket.resize(DESKEW_BUCKETS, None);
+                }
+                let transform = *cache.by_bucket[bucket as usize]
+                    .get_or_insert_with(|| exp(&(self.twist * (-bucket * DESKEW_BUCKET_S))));
+                self.last.set(Some((bucket, transform)));
+                transform
+            } else {
+                exp(&(self.twist * f64::from(dt)))
+            };
         (transform * p).coords
     }
 }
