@@ -7,6 +7,7 @@
 //! seen edge-on.
 
 use std::collections::hash_map::Entry;
+use std::ops::Range;
 
 use nalgebra::Vector3;
 use rustc_hash::FxHashMap;
@@ -53,25 +54,74 @@ pub struct SweepFeatures {
 ///
 /// A return's roughness and LOAM's flags read only its ring's neighbours, so they can be
 /// measured as the sweep streams in ([`Self::begin`], [`Self::extend`] after each batch the
-/// range image calibrates, then [`Self::finish`]); only the picks, whose sectors and thresholds
-/// are the sweep's, wait for its close. [`Self::select`] does it all at once; both give the
-/// same features, bit for bit.
+/// range image calibrates, then [`Self::finish`]). The picks are made sector by sector, all
+/// rings' sector before the next sector's; a sector is picked as soon as every ring has
+/// measured it, by the [`SectorPlan`] the last sweep left, so that at the close only the last
+/// sector's picks remain. [`Self::select`] does it all at once; both give the same features,
+/// bit for bit, from the same plan.
 #[derive(Debug, Default, Clone)]
 pub struct FeatureSelector {
     /// Per ring: its places' values and roughness, measured so far.
     rings: Vec<RingRoughness>,
-    /// Per place along the ring being picked: next to a chosen edge.
-    suppressed: Vec<bool>,
-    /// Plane voxel → its entry in the sweep's planes.
-    voxels: FxHashMap<(i32, i32, i32), usize>,
-    /// Per plane of the sweep: its return's σᴳ.
-    plane_roughness: Vec<f32>,
-    candidates: Vec<(f32, u32)>,
-    /// A sector's edge candidates (reliable, combined σ clear of the threshold by three times
-    /// the noise), roughest first.
-    edge_candidates: Vec<(f32, u32)>,
+    /// The sectors' bounds and the thresholds of the open sweep's picks.
+    plan: Option<SectorPlan>,
+    /// Sectors of the open sweep picked so far.
+    picked: usize,
+    /// The open sweep's picks so far.
+    picks: Picks,
     /// Per return of the sweep: handed to the intensity map.
     kept: Vec<bool>,
+}
+
+/// How the open sweep's rings are cut into sectors, and the azimuth step its thresholds follow:
+/// the last sweep's, whose rings were measured whole. A sector's picks need its bounds before
+/// the ring ends; a sweep whose rings come out longer or shorter than planned by more than
+/// [`PLAN_TOLERANCE`] of a sector, or whose step differs, is picked again at its close by its
+/// own (see [`FeatureSelector::finish`]).
+#[derive(Debug, Clone)]
+struct SectorPlan {
+    /// Per ring: its roughness entries.
+    measured: Vec<usize>,
+    /// The azimuth step, rad (`None` when too sparse to tell).
+    step: Option<f32>,
+}
+
+/// How far (as a share of a sector) a ring's measured length may miss its plan and the sweep
+/// keep the picks made by it: 1/60 of the ring at six sectors, which moves a few returns at
+/// each bound from one sector to the next.
+const PLAN_TOLERANCE: f32 = 0.1;
+
+impl SectorPlan {
+    /// The roughness entries of sector `sector` of ring `r`, which has `measured` of them so
+    /// far: equal shares of the planned entries, the last running to the ring's end.
+    fn sector(&self, r: usize, sector: usize, sectors: usize, measured: usize) -> Range<usize> {
+        let planned = self.measured[r];
+        let per = planned.div_ceil(sectors).max(1);
+        let hi = if sector + 1 == sectors {
+            measured
+        } else {
+            ((sector + 1) * per).min(planned).min(measured)
+        };
+        (sector * per).min(hi)..hi
+    }
+
+    /// Whether a sweep whose rings and step came out as `own` was cut as planned.
+    fn holds(&self, own: &SectorPlan, sectors: usize) -> bool {
+        let steps_agree = match (self.step, own.step) {
+            (Some(a), Some(b)) => (a - b).abs() <= 0.01 * a,
+            (a, b) => a.is_none() && b.is_none(),
+        };
+        steps_agree
+            && self.measured.len() == own.measured.len()
+            && self
+                .measured
+                .iter()
+                .zip(&own.measured)
+                .all(|(&planned, &measured)| {
+                    let slack = PLAN_TOLERANCE * planned.div_ceil(sectors) as f32;
+                    (measured as f32 - planned as f32).abs() <= slack
+                })
+    }
 }
 
 /// One ring's values side by side, read from the sweep's per-point arrays once: a ring is every
@@ -96,6 +146,8 @@ struct RingRoughness {
     next: usize,
     /// The position of the last return handed to the intensity map.
     last_kept: [f32; 3],
+    /// Per place: next to a chosen edge.
+    suppressed: Vec<bool>,
 }
 
 /// One sweep as the selection rules read it.
@@ -132,10 +184,9 @@ struct Thresholds {
 }
 
 impl Thresholds {
-    fn new(config: &FeatureConfig, image: &RangeImage, k: usize) -> Self {
-        let step_ratio = image
-            .azimuth_step()
-            .map_or(1.0, |step| step / REFERENCE_STEP_RAD);
+    /// The thresholds for a sweep of azimuth step `step` (rad; the reference step if unknown).
+    fn new(config: &FeatureConfig, step: Option<f32>, k: usize) -> Self {
+        let step_ratio = step.map_or(1.0, |step| step / REFERENCE_STEP_RAD);
         Self {
             edge: config.edge_threshold * step_ratio.clamp(0.5, 4.0),
             plane: config.plane_threshold * step_ratio.clamp(0.5, 4.0),
@@ -160,6 +211,7 @@ impl RingRoughness {
         self.window = Vector3::zeros();
         self.next = 0;
         self.last_kept = [f32::INFINITY; 3];
+        self.suppressed.clear();
     }
 
     /// Loads ring `r`'s places up to `ready` (those calibrated), marks in `kept` those handed
@@ -291,17 +343,28 @@ impl RingRoughness {
 }
 
 impl FeatureSelector {
-    /// Opens a sweep of `rings` rings, dropping whatever was measured before.
+    /// Opens a sweep of `rings` rings, dropping whatever was measured before. Its sectors follow
+    /// the last sweep's plan if that had as many rings.
     pub fn begin(&mut self, rings: usize) {
         self.rings.resize_with(rings, RingRoughness::default);
         for ring in &mut self.rings {
             ring.clear();
         }
         self.kept.clear();
+        if self
+            .plan
+            .as_ref()
+            .is_some_and(|plan| plan.measured.len() != rings)
+        {
+            self.plan = None;
+        }
+        self.picks.restart();
+        self.picked = 0;
     }
 
-    /// Measures the roughness of the returns `image` has calibrated since the last call. A ring
-    /// the image will calibrate again is left to [`Self::finish`].
+    /// Measures the roughness of the returns `image` has calibrated since the last call, and
+    /// picks the sectors every ring has now measured (all but the last). A ring the image will
+    /// calibrate again is left to [`Self::finish`].
     pub fn extend(&mut self, image: &RangeImage, config: &FeatureConfig) {
         let k = config.neighbours.max(1);
         self.kept.resize(image.len(), false);
@@ -311,6 +374,24 @@ impl FeatureSelector {
                 ring.advance(image, (r, ready), config, k, &mut self.kept);
             }
         }
+        let Some(plan) = self.plan.take() else {
+            return;
+        };
+        let sectors = config.sectors.max(1);
+        let limits = Thresholds::new(config, plan.step, k);
+        while self.picked + 1 < sectors {
+            let sector = self.picked;
+            let measured = self.rings.iter().enumerate().all(|(r, ring)| {
+                !image.redone(r)
+                    && ring.roughness.len() >= plan.sector(r, sector, sectors, usize::MAX).end
+            });
+            if !measured {
+                break;
+            }
+            self.pick_sector(image, config, (&plan, &limits), sector);
+            self.picked += 1;
+        }
+        self.plan = Some(plan);
     }
 
     /// Selects the features of `scan`, whose returns `image` has calibrated, into `out`.
@@ -325,9 +406,10 @@ impl FeatureSelector {
         self.finish(scan, image, config, out);
     }
 
-    /// [`Self::select`], continuing from what [`Self::extend`] measured of `image` since
-    /// [`Self::begin`]: ring by ring the rest of the roughness and the picks below, then the
-    /// intensity points and the intensity map's input.
+    /// [`Self::select`], continuing from what [`Self::extend`] measured and picked of `image`
+    /// since [`Self::begin`]: ring by ring the rest of the roughness, the sectors left to pick
+    /// (all of them again if a ring was recalibrated or the plan did not hold), then the
+    /// intensity points and the intensity map's input. Leaves the plan for the next sweep.
     pub fn finish(
         &mut self,
         scan: &Scan<'_>,
@@ -341,56 +423,59 @@ impl FeatureSelector {
         out.planes.clear();
         out.intensity.clear();
         out.calibrated.clear();
-        self.voxels.clear();
-        self.plane_roughness.clear();
-        self.candidates.clear();
-        let sweep = SweepView {
-            scan,
-            image,
-            config,
-        };
         let k = config.neighbours.max(1);
-        let limits = Thresholds::new(config, image, k);
-        let mut last_voxel = None;
         if self.rings.len() != image.rings() {
             self.begin(image.rings());
         }
         self.kept.resize(image.len(), false);
-        let mut rings = std::mem::take(&mut self.rings);
-        for (r, (ring, members)) in rings.iter_mut().zip(&image.ring_points).enumerate() {
+        let mut restart = false;
+        for (r, (ring, members)) in self.rings.iter_mut().zip(&image.ring_points).enumerate() {
             if image.redone(r) || ring.range.len() > members.len() {
                 ring.clear();
                 for &m in members {
                     self.kept[m as usize] = false;
                 }
+                restart = true;
             }
             ring.advance(image, (r, members.len()), config, k, &mut self.kept);
-            if members.len() < 2 * k + 1 {
-                continue;
-            }
-            self.suppressed.clear();
-            self.suppressed.resize(members.len(), false);
-            let sectors = config.sectors.max(1);
-            let per = ring.roughness.len().div_ceil(sectors).max(1);
-            for sector in 0..sectors {
-                let lo = sector * per;
-                let hi = ((sector + 1) * per).min(ring.roughness.len());
-                if lo >= hi {
-                    continue;
-                }
-                self.pick_edges(&sweep, &limits, (ring, members), lo..hi, k, out);
-                self.pick_planes_and_intensity_candidates(
-                    &sweep,
-                    &limits,
-                    (ring, members, &image.ring_positions[r]),
-                    lo..hi,
-                    &mut last_voxel,
-                    out,
-                );
-            }
         }
-        self.rings = rings;
-        self.keep_strongest_intensity(&sweep, out);
+        let sectors = config.sectors.max(1);
+        let step = image.azimuth_step();
+        let own = SectorPlan {
+            measured: self.rings.iter().map(|ring| ring.roughness.len()).collect(),
+            step,
+        };
+        let plan = match self.plan.take() {
+            Some(plan) if plan.holds(&own, sectors) => plan,
+            _ => {
+                restart = true;
+                own.clone()
+            }
+        };
+        if restart {
+            self.picks.restart();
+            for ring in &mut self.rings {
+                ring.suppressed.clear();
+            }
+            self.picked = 0;
+        }
+        let limits = Thresholds::new(config, plan.step, k);
+        for sector in self.picked..sectors {
+            self.pick_sector(image, config, (&plan, &limits), sector);
+        }
+        self.picked = sectors;
+        self.plan = Some(own);
+
+        let sweep = SweepView {
+            scan,
+            image,
+            config,
+        };
+        out.edges
+            .extend(self.picks.edges.iter().map(|&i| sweep.feature(i as usize)));
+        out.planes
+            .extend(self.picks.planes.iter().map(|&i| sweep.feature(i as usize)));
+        self.picks.keep_strongest_intensity(&sweep, out);
         keep_evenly(&mut out.planes, config.max_planes);
         // In firing order, as the intensity map takes them.
         if scan.rings > 0 {
@@ -398,6 +483,11 @@ impl FeatureSelector {
                 out.calibrated.push(sweep.feature(i));
             }
         }
+    }
+
+    /// Sectors of the open sweep picked before its close.
+    pub fn picked_early(&self) -> usize {
+        self.picked
     }
 
     /// Every ring's (σᴳ, σᴵ, place) of the sweep last selected, ring after ring.
@@ -408,20 +498,77 @@ impl FeatureSelector {
             .flat_map(|ring| ring.roughness.iter().copied())
     }
 
+    /// Sector `sector` of every ring, in ring order: its edges, then its planes and intensity
+    /// candidates.
+    fn pick_sector(
+        &mut self,
+        image: &RangeImage,
+        config: &FeatureConfig,
+        (plan, limits): (&SectorPlan, &Thresholds),
+        sector: usize,
+    ) {
+        let k = config.neighbours.max(1);
+        let sectors = config.sectors.max(1);
+        for (r, ring) in self.rings.iter_mut().enumerate() {
+            let range = plan.sector(r, sector, sectors, ring.roughness.len());
+            if range.is_empty() {
+                continue;
+            }
+            let members = &image.ring_points[r];
+            ring.suppressed.resize(ring.range.len(), false);
+            self.picks
+                .edges_in(config, limits, (ring, members), range.clone(), k);
+            self.picks.planes_and_intensity_candidates_in(
+                config,
+                limits,
+                (ring, members, &image.ring_positions[r]),
+                range,
+            );
+        }
+    }
+}
+
+/// The picks of the open sweep, as returns of its scan, and the buffers they are made with.
+#[derive(Debug, Default, Clone)]
+struct Picks {
+    edges: Vec<u32>,
+    planes: Vec<u32>,
+    /// Plane voxel → its entry in `planes`.
+    voxels: FxHashMap<(i32, i32, i32), usize>,
+    /// The voxel of the last plane candidate and its entry: successive returns of a ring mostly
+    /// share one, which is then not hashed again.
+    last_voxel: Option<((i32, i32, i32), usize)>,
+    /// Per plane: its return's σᴳ.
+    plane_roughness: Vec<f32>,
+    /// Intensity candidates: (σᴵ, return).
+    candidates: Vec<(f32, u32)>,
+    /// A sector's edge candidates (reliable, combined σ clear of the threshold by three times
+    /// the noise), roughest first.
+    edge_candidates: Vec<(f32, u32)>,
+}
+
+impl Picks {
+    fn restart(&mut self) {
+        self.edges.clear();
+        self.planes.clear();
+        self.voxels.clear();
+        self.last_voxel = None;
+        self.plane_roughness.clear();
+        self.candidates.clear();
+    }
+
     /// A sector's edges: only reliable returns whose combined σ clears the threshold by three
     /// times the noise can be one, so only those are ranked (ties by ring order, so the choice
     /// is deterministic); the roughest `edges_per_sector` are taken, each suppressing its `k`
     /// neighbours either side so that edges spread along the ring.
-    fn pick_edges(
+    fn edges_in(
         &mut self,
-        sweep: &SweepView<'_>,
+        config: &FeatureConfig,
         limits: &Thresholds,
-        (ring, members): (&RingRoughness, &[u32]),
-        sector: std::ops::Range<usize>,
+        (ring, members): (&mut RingRoughness, &[u32]),
+        sector: Range<usize>,
         k: usize,
-        out: &mut SweepFeatures,
     ) {
-        let config = sweep.config;
         let combined = |g: f32, i: f32| config.geometric_weight * g + config.intensity_weight * i;
         let (ring_range, unreliable) = (&ring.range, &ring.unreliable);
         self.edge_candidates.clear();
@@ -436,19 +583,19 @@ impl FeatureSelector {
         );
         self.edge_candidates
             .sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-        let len = members.len();
+        let len = ring.suppressed.len();
         let mut edges = 0;
         for &(_, w) in &self.edge_candidates {
             if edges >= config.edges_per_sector {
                 break;
             }
             let w = w as usize;
-            if self.suppressed[w] {
+            if ring.suppressed[w] {
                 continue;
             }
-            out.edges.push(sweep.feature(members[w] as usize));
+            self.edges.push(members[w]);
             edges += 1;
-            for flag in &mut self.suppressed[w.saturating_sub(k)..(w + k + 1).min(len)] {
+            for flag in &mut ring.suppressed[w.saturating_sub(k)..(w + k + 1).min(len)] {
                 *flag = true;
             }
         }
@@ -456,45 +603,40 @@ impl FeatureSelector {
 
     /// A sector's planes and intensity candidates. Planes: reliable returns, not next to an
     /// edge, with σᴳ under the threshold plus the noise, one per voxel of `plane_voxel`: the
-    /// least flat return that still passes (the first of the sector's returns ranked roughest
-    /// first; keeping the flattest instead drifted more, see `docs/decisions.md`). Intensity
+    /// least flat return that still passes (the first of the returns ranked roughest first;
+    /// keeping the flattest instead drifted more, see `docs/decisions.md`). Intensity
     /// candidates: reliable returns with a known η and σᴵ over its threshold.
-    fn pick_planes_and_intensity_candidates(
+    fn planes_and_intensity_candidates_in(
         &mut self,
-        sweep: &SweepView<'_>,
+        config: &FeatureConfig,
         limits: &Thresholds,
         (ring, members, positions): (&RingRoughness, &[u32], &[Vector3<f32>]),
-        sector: std::ops::Range<usize>,
-        last_voxel: &mut Option<((i32, i32, i32), usize)>,
-        out: &mut SweepFeatures,
+        sector: Range<usize>,
     ) {
-        let config = sweep.config;
         for &(g, rough_i, w) in &ring.roughness[sector] {
-            let (w, i) = (w as usize, members[w as usize] as usize);
+            let (w, i) = (w as usize, members[w as usize]);
             if ring.unreliable[w] {
                 continue;
             }
-            if g < limits.plane + limits.noise(ring.range[w]) && !self.suppressed[w] {
+            if g < limits.plane + limits.noise(ring.range[w]) && !ring.suppressed[w] {
                 let p = positions[w];
                 let key = (
                     (p.x * limits.per_voxel).floor() as i32,
                     (p.y * limits.per_voxel).floor() as i32,
                     (p.z * limits.per_voxel).floor() as i32,
                 );
-                // Successive returns of a ring mostly share a voxel: its plane's index is kept
-                // from one to the next instead of hashed again.
-                let at = match *last_voxel {
+                let at = match self.last_voxel {
                     Some((voxel, at)) if voxel == key => Some(at),
                     _ => match self.voxels.entry(key) {
                         Entry::Vacant(v) => {
-                            v.insert(out.planes.len());
-                            *last_voxel = Some((key, out.planes.len()));
-                            out.planes.push(sweep.feature(i));
+                            v.insert(self.planes.len());
+                            self.last_voxel = Some((key, self.planes.len()));
+                            self.planes.push(i);
                             self.plane_roughness.push(g);
                             None
                         }
                         Entry::Occupied(o) => {
-                            *last_voxel = Some((key, *o.get()));
+                            self.last_voxel = Some((key, *o.get()));
                             Some(*o.get())
                         }
                     },
@@ -502,12 +644,12 @@ impl FeatureSelector {
                 if let Some(at) = at {
                     if g > self.plane_roughness[at] {
                         self.plane_roughness[at] = g;
-                        out.planes[at] = sweep.feature(i);
+                        self.planes[at] = i;
                     }
                 }
             }
             if rough_i > config.intensity_roughness_threshold && ring.eta[w][1] > 0.0 {
-                self.candidates.push((rough_i, i as u32));
+                self.candidates.push((rough_i, i));
             }
         }
     }

@@ -1,8 +1,9 @@
 //! Steps 1–2 of the method for one sweep: intensity calibration (the range image, normals and
 //! incidence angles) and the selection of edge, plane and intensity points. Independent of the
 //! motion, so it runs on a thread of its own ahead of the odometry. The calibration and the
-//! returns' roughness can also be worked out as the sweep streams in, so that once the last
-//! return is in only the sweep's end and the picks of features remain.
+//! returns' roughness, and the picks of all sectors but the last, can also be worked out as the
+//! sweep streams in, so that once the last return is in only the sweep's end and its last
+//! sector remain.
 
 use crate::calibration::RangeImage;
 use crate::config::OdometryConfig;
@@ -71,6 +72,12 @@ impl FrontEnd {
                 .select(scan, &self.image, &self.config.features, out);
         }
         self.streamed = None;
+    }
+
+    /// Feature sectors of the open sweep already picked (see [`FeatureSelector`]): the
+    /// sectors left for its close are the others.
+    pub fn sectors_picked(&self) -> usize {
+        self.selector.picked_early()
     }
 
     /// How many rings of the sweep last processed had been streamed in and had to be
@@ -209,8 +216,15 @@ mod tests {
         for columns in [1800, 1803] {
             let points = box_sweep(columns);
             let scan = scan(&points);
+            // Each after a sweep like it, which leaves its plan of sectors.
+            let before = later(&points, -1);
+            let before = Scan {
+                points: &before,
+                ..scan
+            };
             let mut whole = FrontEnd::new(&config);
             let mut features = SweepFeatures::default();
+            whole.process(&before, &mut features);
             whole.process(&scan, &mut features);
             let expected = outcome(&whole, &features, points.len());
             assert!(
@@ -223,12 +237,20 @@ mod tests {
 
             // A packet's worth at a time, the last packet's with the closed sweep.
             let mut streamed = FrontEnd::new(&config);
+            streamed.process(&before, &mut features);
             streamed.begin(16);
             let last_packet = points.len() - 384;
             for chunk in points[..last_packet].chunks(384) {
                 streamed.stream(chunk);
             }
             assert_eq!(streamed.streamed(), last_packet);
+            // All sectors but the last are picked before the close, unless a ring is to be
+            // recalibrated.
+            assert!(
+                streamed.sectors_picked() == config.features.sectors - 1 || columns > 1800,
+                "{} sectors picked",
+                streamed.sectors_picked()
+            );
             // Most of it is calibrated before the sweep closes.
             let pending = streamed.image.pending();
             assert!(
@@ -252,19 +274,55 @@ mod tests {
         }
     }
 
+    /// `points` `sweeps` sweeps of 100 ms later.
+    fn later(points: &[ScanPoint], sweeps: i64) -> Vec<ScanPoint> {
+        let mut points = points.to_vec();
+        for p in &mut points {
+            p.time_ns = p.time_ns.wrapping_add_signed(sweeps * 100_000_000);
+        }
+        points
+    }
+
+    /// What a new front end makes of `points` as one sweep.
+    fn processed_whole(config: &OdometryConfig, points: &[ScanPoint]) -> Vec<Vec<[u32; 9]>> {
+        let mut whole = FrontEnd::new(config);
+        let mut features = SweepFeatures::default();
+        whole.process(&scan(points), &mut features);
+        outcome(&whole, &features, points.len())
+    }
+
+    #[test]
+    fn a_sweep_unlike_the_last_is_picked_again_by_its_own_sectors() {
+        let config = OdometryConfig::default();
+        let points = box_sweep(1800);
+        let expected = processed_whole(&config, &points);
+        let mut features = SweepFeatures::default();
+
+        // The sweep before saw nothing of the upper rings over half its turn.
+        let half_seen: Vec<ScanPoint> = later(&points, -1)
+            .into_iter()
+            .enumerate()
+            .filter(|(i, p)| p.ring < 8 || i % (16 * 1800) < 16 * 900)
+            .map(|(_, p)| p)
+            .collect();
+        let mut front_end = FrontEnd::new(&config);
+        front_end.process(&scan(&half_seen), &mut features);
+        front_end.begin(16);
+        for chunk in points[..points.len() - 384].chunks(384) {
+            front_end.stream(chunk);
+        }
+        assert!(front_end.sectors_picked() > 0);
+        front_end.process(&scan(&points), &mut features);
+        assert_eq!(outcome(&front_end, &features, points.len()), expected);
+    }
+
     #[test]
     fn returns_streamed_from_another_sweep_are_dropped() {
         let config = OdometryConfig::default();
         let points = box_sweep(1800);
-        let mut whole = FrontEnd::new(&config);
-        let mut features = SweepFeatures::default();
-        whole.process(&scan(&points), &mut features);
-        let expected = outcome(&whole, &features, points.len());
+        let expected = processed_whole(&config, &points);
 
-        let mut other = box_sweep(1800);
-        for p in &mut other {
-            p.time_ns += 100_000_000;
-        }
+        let other = later(&points, 1);
         let mut front_end = FrontEnd::new(&config);
         front_end.begin(16);
         front_end.stream(&other[..5000]);

@@ -54,6 +54,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
     };
     let mut streamed = Vec::new();
     let mut recalibrated = 0u64;
+    // Feature sectors picked before the last packet, and the sectors there were.
+    let mut picked_early = (0usize, 0usize);
     let mut front = Vec::new();
     let mut deskew = Vec::new();
     let mut align = Vec::new();
@@ -97,6 +99,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 front_end.stream(chunk);
             }
             let t0 = Instant::now();
+            picked_early.0 += front_end.sectors_picked();
+            picked_early.1 += config.features.sectors.max(1);
             front_end.process(&scan, &mut features);
             let t1 = Instant::now();
             recalibrated += u64::from(front_end.recalibrated() > 0);
@@ -168,6 +172,11 @@ pub fn run(args: BenchArgs) -> Result<()> {
         "  {recalibrated} of {} sweeps had rings recalibrated at the close (a late return where a \
          streamed normal had looked)",
         total.len()
+    );
+    say!(
+        "  {} of {} feature sectors picked before the last packet",
+        picked_early.0,
+        picked_early.1
     );
     if site_map.is_some() {
         say!(
