@@ -50,6 +50,18 @@ pub struct SweepFeatures {
     pub calibrated: Vec<Feature>,
 }
 
+impl SweepFeatures {
+    /// Empties them for the features of `scan`.
+    fn restart(&mut self, scan: &Scan<'_>) {
+        self.reference_ns = scan.reference_ns;
+        self.returns = scan.points.len();
+        self.edges.clear();
+        self.planes.clear();
+        self.intensity.clear();
+        self.calibrated.clear();
+    }
+}
+
 /// Selects features; owns the buffers it reuses from sweep to sweep.
 ///
 /// A return's roughness and LOAM's flags read only its ring's neighbours, so they can be
@@ -160,15 +172,20 @@ struct SweepView<'a> {
 impl SweepView<'_> {
     /// Return `i` as a feature.
     fn feature(&self, i: usize) -> Feature {
-        let p = &self.scan.points[i];
-        let dt = (p.time_ns as f64 - self.scan.reference_ns as f64) * 1e-9;
-        Feature {
-            position: p.position,
-            dt: dt as f32,
-            eta: self.image.eta[i],
-            normal: self.image.normal[i],
-            point: i as u32,
-        }
+        feature(self.scan, self.image, i)
+    }
+}
+
+/// Return `i` of `scan`, which `image` has calibrated, as a feature.
+fn feature(scan: &Scan<'_>, image: &RangeImage, i: usize) -> Feature {
+    let p = &scan.points[i];
+    let dt = (p.time_ns as f64 - scan.reference_ns as f64) * 1e-9;
+    Feature {
+        position: p.position,
+        dt: dt as f32,
+        eta: image.eta[i],
+        normal: image.normal[i],
+        point: i as u32,
     }
 }
 
@@ -417,12 +434,7 @@ impl FeatureSelector {
         config: &FeatureConfig,
         out: &mut SweepFeatures,
     ) {
-        out.reference_ns = scan.reference_ns;
-        out.returns = scan.points.len();
-        out.edges.clear();
-        out.planes.clear();
-        out.intensity.clear();
-        out.calibrated.clear();
+        out.restart(scan);
         let k = config.neighbours.max(1);
         if self.rings.len() != image.rings() {
             self.begin(image.rings());
@@ -488,6 +500,32 @@ impl FeatureSelector {
     /// Sectors of the open sweep picked before its close.
     pub fn picked_early(&self) -> usize {
         self.picked
+    }
+
+    /// The edges and planes of the open sweep picked so far, from the `from`th edge and plane on
+    /// (a plane's pick may still change to a rougher return of its voxel), as features of
+    /// `scan`, whose returns `image` holds, into `out`; returns how many edges and planes were
+    /// picked.
+    pub fn early_features(
+        &self,
+        scan: &Scan<'_>,
+        image: &RangeImage,
+        from: (usize, usize),
+        out: &mut SweepFeatures,
+    ) -> (usize, usize) {
+        out.restart(scan);
+        let picked = |picks: &[u32], from: usize, into: &mut Vec<Feature>| {
+            into.extend(
+                picks
+                    .iter()
+                    .skip(from)
+                    .filter(|&&i| (i as usize) < scan.points.len())
+                    .map(|&i| feature(scan, image, i as usize)),
+            );
+        };
+        picked(&self.picks.edges, from.0, &mut out.edges);
+        picked(&self.picks.planes, from.1, &mut out.planes);
+        (self.picks.edges.len(), self.picks.planes.len())
     }
 
     /// Every ring's (σᴳ, σᴵ, place) of the sweep last selected, ring after ring.

@@ -18,6 +18,8 @@ pub struct FrontEnd {
     selector: FeatureSelector,
     /// The last return streamed into the open sweep, if any.
     streamed: Option<ScanPoint>,
+    /// The open sweep's edges and planes handed out by [`Self::early_features`].
+    handed_early: (usize, usize),
 }
 
 impl FrontEnd {
@@ -35,6 +37,7 @@ impl FrontEnd {
         self.image.begin(rings);
         self.selector.begin(self.image.rings());
         self.streamed = None;
+        self.handed_early = (0, 0);
     }
 
     /// Streams the open sweep's next returns in, in firing order, calibrating those whose
@@ -78,6 +81,21 @@ impl FrontEnd {
     /// sectors left for its close are the others.
     pub fn sectors_picked(&self) -> usize {
         self.selector.picked_early()
+    }
+
+    /// The edges and planes of the open sweep picked since the last call (since
+    /// [`Self::begin`] the first time), as features of `streamed` (the returns streamed in
+    /// since [`Self::begin`]) with the last of them as the reference time, into `out`: what
+    /// the odometry can associate before the sweep closes.
+    pub fn early_features(&mut self, streamed: &[ScanPoint], out: &mut SweepFeatures) {
+        let scan = Scan {
+            points: streamed,
+            rings: self.image.rings(),
+            reference_ns: streamed.last().map_or(0, |p| p.time_ns),
+        };
+        self.handed_early =
+            self.selector
+                .early_features(&scan, &self.image, self.handed_early, out);
     }
 
     /// How many rings of the sweep last processed had been streamed in and had to be

@@ -21,7 +21,8 @@ use crate::intensity_map::IntensityMap;
 use crate::local_map::LocalMap;
 use crate::se3::{exp, log};
 use crate::solver::{
-    align_with, angular_weight, Alignment, AlignmentInput, Correspondences, IntensityPoint, MapView,
+    align_with, angular_weight, Alignment, AlignmentInput, Correspondences, EarlyCorrespondences,
+    IntensityPoint, MapView,
 };
 
 /// Where the odometry stands.
@@ -77,6 +78,10 @@ pub struct Odometry {
     input: AlignmentInput,
     /// The current sweep's correspondences, for its refinement after the second deskew.
     correspondences: Correspondences,
+    /// Correspondences of the open sweep's features picked before its close.
+    early: EarlyCorrespondences,
+    /// The early features deskewed (scratch).
+    early_input: AlignmentInput,
     sweeps: u64,
     known_poses: bool,
     /// The pose of the last sweep that grew the maps.
@@ -115,6 +120,8 @@ impl Odometry {
             velocity: Vector6::zeros(),
             input: AlignmentInput::default(),
             correspondences: Correspondences::default(),
+            early: EarlyCorrespondences::default(),
+            early_input: AlignmentInput::default(),
             sweeps: 0,
             known_poses: false,
             mapped_at: None,
@@ -227,7 +234,7 @@ impl Odometry {
             return self.initialise(features, time_ns, prediction);
         }
 
-        let mut alignment = self.align(&prediction, Rounds::Full);
+        let mut alignment = self.align_seeded(features, &prediction);
         if alignment.edges + alignment.planes < self.config.solver.min_correspondences {
             on_stage(Stage::Align);
             // Hold the prediction; the maps do not grow from a sweep that did not match.
@@ -299,6 +306,69 @@ impl Odometry {
         }
     }
 
+    /// Associates, at the pose predicted for their reference time, the edges and planes of the
+    /// open sweep picked before its close (`features`, with the time of the last return
+    /// streamed in as their reference, and `sweep` the time of the sweep's first return), so
+    /// that its alignment finds them associated (see [`EarlyCorrespondences`]). Only once the
+    /// maps exist and between a sweep's [`Self::update_maps`] and the next sweep's alignment;
+    /// the pose is predicted from the motion so far, as the alignment's will be.
+    pub fn associate_early(&mut self, sweep: u64, features: &SweepFeatures) {
+        if self.last.is_none() || self.planes.is_empty() || self.pending_growth.is_some() {
+            return;
+        }
+        let prediction = self.prediction(features.reference_ns);
+        deskew_into(
+            &mut self.early_input,
+            features,
+            &self.velocity,
+            &self.config,
+            &self.deskew_cache,
+        );
+        let maps = MapView {
+            edges: &self.edges,
+            planes: &self.planes,
+            intensity: &self.intensity,
+        };
+        let edges = features.edges.iter().map(|f| f.point);
+        let planes = kept_planes(features, &self.config).map(|f| f.point);
+        self.early.associate(
+            sweep,
+            &prediction,
+            (
+                edges.zip(self.early_input.edges.iter().copied()),
+                planes.zip(self.early_input.planes.iter().copied()),
+            ),
+            maps,
+            &self.config.solver,
+        );
+    }
+
+    /// Correspondences made early for the open sweep so far.
+    pub fn early_correspondences(&self) -> usize {
+        self.early.len()
+    }
+
+    /// The sweep's first alignment from `from`, starting from the correspondences made early
+    /// for its features, which it then forgets.
+    fn align_seeded(&mut self, features: &SweepFeatures, from: &Isometry3<f64>) -> Alignment {
+        if self.early.is_empty() {
+            return self.align(from, Rounds::Full);
+        }
+        let edges: Vec<u32> = features.edges.iter().map(|f| f.point).collect();
+        let planes: Vec<u32> = kept_planes(features, &self.config)
+            .map(|f| f.point)
+            .collect();
+        self.early.seed(
+            &mut self.correspondences,
+            (&edges, &planes),
+            &self.input,
+            from,
+            &self.config.solver,
+        );
+        self.early.clear();
+        self.align(from, Rounds::Seeded)
+    }
+
     /// Steps 3–5: aligns the deskewed features to the maps from `from`.
     fn align(&mut self, from: &Isometry3<f64>, rounds: Rounds) -> Alignment {
         let maps = MapView {
@@ -312,6 +382,7 @@ impl Odometry {
                 self.correspondences.clear();
                 &self.config.solver
             }
+            Rounds::Seeded => &self.config.solver,
             Rounds::Refine => {
                 refine = crate::config::SolverConfig {
                     outer_iterations: 1,
@@ -502,6 +573,7 @@ impl Odometry {
     /// Adds the sweep at `pose` to the maps if it was taken far enough from the last sweep that
     /// was (see [`crate::config::LocalMapConfig::update_distance`]); always while they are empty.
     fn grow_maps(&mut self, features: &SweepFeatures, pose: &Isometry3<f64>) {
+        self.early.clear();
         let config = &self.config.local_map;
         if let Some(mapped) = self.mapped_at.filter(|_| !self.planes.is_empty()) {
             let moved = mapped.inverse() * pose;
@@ -557,20 +629,10 @@ fn deskew_into(
     // at a grazing angle) says little about the pose, and in the map it would carry that
     // sweep's tilt to every later sweep matched to it: it is left out of both, and the
     // surface enters the map when the robot sees it closer.
-    let min_weight = config.local_map.min_plane_weight;
-    let solver = &config.solver;
     input.planes.clear();
-    input.planes.extend(features.planes.iter().filter_map(|f| {
-        // Judged at the firing position, so a second deskew keeps the same points.
-        let p = Vector3::from(f.position).cast::<f64>();
-        let normal = Vector3::from(f.normal).cast::<f64>();
-        let lever_sq = if normal == Vector3::zeros() {
-            p.norm_squared()
-        } else {
-            p.cross(&normal).norm_squared()
-        };
-        (angular_weight(lever_sq, solver) >= min_weight).then(|| skew.apply(f))
-    }));
+    input
+        .planes
+        .extend(kept_planes(features, config).map(|f| skew.apply(f)));
     input.intensity.clear();
     if config.solver.use_intensity {
         input
@@ -581,6 +643,26 @@ fn deskew_into(
                 normal: Vector3::from(f.normal).cast(),
             }));
     }
+}
+
+/// The planes of `features` an alignment takes, in order: judged at the firing position, so a
+/// second deskew keeps the same points.
+fn kept_planes<'a>(
+    features: &'a SweepFeatures,
+    config: &'a OdometryConfig,
+) -> impl Iterator<Item = &'a Feature> + 'a {
+    let min_weight = config.local_map.min_plane_weight;
+    let solver = &config.solver;
+    features.planes.iter().filter(move |f| {
+        let p = Vector3::from(f.position).cast::<f64>();
+        let normal = Vector3::from(f.normal).cast::<f64>();
+        let lever_sq = if normal == Vector3::zeros() {
+            p.norm_squared()
+        } else {
+            p.cross(&normal).norm_squared()
+        };
+        angular_weight(lever_sq, solver) >= min_weight
+    })
 }
 
 /// The calibrated returns of a sweep, deskewed for the body twist `velocity` and placed in the
@@ -605,6 +687,8 @@ fn place_calibrated<'a>(
 #[derive(Debug, Clone, Copy)]
 enum Rounds {
     Full,
+    /// From scratch, but for the correspondences seeded from early ones.
+    Seeded,
     Refine,
 }
 
@@ -977,17 +1061,62 @@ mod tests {
         speed: f32,
         out: &mut SweepFeatures,
     ) {
-        let end_ns = 1_000_000_000 + k * 100_000_000;
-        let end_x = start_x + speed * 0.1 * k as f32;
-        let points = sweep_in_motion(end_ns, |ray, before_end| {
-            room_from(&Vector3::new(end_x - speed * before_end, 0.0, 0.0), ray)
-        });
+        let (points, end_ns) = sweep_through_the_room(k, start_x, speed);
         let scan = Scan {
             points: &points,
             rings: 16,
             reference_ns: end_ns,
         };
         front_end.process(&scan, out);
+    }
+
+    /// Sweep `k` (and its end) of a sensor driving along +x through the room at `speed`, from
+    /// `start_x` at the end of sweep 0.
+    fn sweep_through_the_room(k: u64, start_x: f32, speed: f32) -> (Vec<ScanPoint>, u64) {
+        let end_ns = 1_000_000_000 + k * 100_000_000;
+        let end_x = start_x + speed * 0.1 * k as f32;
+        let points = sweep_in_motion(end_ns, |ray, before_end| {
+            room_from(&Vector3::new(end_x - speed * before_end, 0.0, 0.0), ray)
+        });
+        (points, end_ns)
+    }
+
+    #[test]
+    fn correspondences_made_before_the_close_track_as_those_made_after() {
+        // One odometry gets each sweep's early picks associated as the sweep streams in, a
+        // packet's worth at a time; the other only the closed sweep. The early ones are made
+        // at another reference time (the last return streamed in), so the poses may differ in
+        // the last bits, not more.
+        let config = OdometryConfig::default();
+        let mut plain = Rig::new(&config);
+        let mut early = Rig::new(&config);
+        let mut picked = SweepFeatures::default();
+        for k in 0..12u64 {
+            let (points, end_ns) = sweep_through_the_room(k, -3.0, 1.5);
+            let expected = plain.feed(&points, end_ns);
+
+            early.front_end.begin(16);
+            let mut sectors = 0;
+            for end in (384..points.len() - 384).step_by(384) {
+                early.front_end.stream(&points[end - 384..end]);
+                if early.front_end.sectors_picked() > sectors {
+                    sectors = early.front_end.sectors_picked();
+                    early.front_end.early_features(&points[..end], &mut picked);
+                    early.odometry.associate_early(points[0].time_ns, &picked);
+                }
+            }
+            let made = early.odometry.early_correspondences();
+            let got = early.feed(&points, end_ns);
+            if k >= 2 {
+                assert!(made > 100, "sweep {k}: {made} made early");
+            }
+            let apart = got.pose.inverse() * expected.pose;
+            assert!(
+                apart.translation.vector.norm() < 1e-3 && apart.rotation.angle() < 1e-4,
+                "sweep {k}: {apart}"
+            );
+            assert_eq!(got.status, expected.status, "sweep {k}");
+        }
     }
 
     #[test]

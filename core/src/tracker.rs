@@ -389,6 +389,12 @@ impl Tracker {
         self.odometry.update_maps(features)
     }
 
+    /// Associates the open sweep's features picked before its close (see
+    /// [`Odometry::associate_early`]); `sweep` is the time of its first return.
+    pub fn associate_early(&mut self, sweep: u64, features: &SweepFeatures) {
+        self.odometry.associate_early(sweep, features);
+    }
+
     /// [`Self::track`] up to the sweep's pose, keyframe and events: the odometry's maps grow
     /// from it in [`Self::update_maps`], which the caller runs once the pose is on its way.
     pub fn track_pose(

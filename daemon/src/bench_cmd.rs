@@ -56,6 +56,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let mut recalibrated = 0u64;
     // Feature sectors picked before the last packet, and the sectors there were.
     let mut picked_early = (0usize, 0usize);
+    // Per sweep, the correspondences made before the last packet.
+    let mut early_associated = Vec::new();
     let mut front = Vec::new();
     let mut deskew = Vec::new();
     let mut align = Vec::new();
@@ -79,6 +81,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             None => Tracker::new(&config, None),
         };
         let mut features = SweepFeatures::default();
+        let mut early = SweepFeatures::default();
         let mut points = Vec::new();
         sweeps = 0;
         let report = capture::replay(&args.capture, &args.sensor, |sweep| {
@@ -95,9 +98,20 @@ pub fn run(args: BenchArgs) -> Result<()> {
             let last_packet = scan.points.len().saturating_sub(per_packet);
             let s0 = Instant::now();
             front_end.begin(scan.rings);
+            let mut streamed_in = 0;
+            let mut associated = 0;
+            let sweep_start = scan.points.first().map_or(0, |p| p.time_ns);
             for chunk in scan.points[..last_packet].chunks(per_packet) {
                 front_end.stream(chunk);
+                streamed_in += chunk.len();
+                // As the daemon's odometry thread does with each sector the front end picks.
+                if front_end.sectors_picked() > associated {
+                    associated = front_end.sectors_picked();
+                    front_end.early_features(&scan.points[..streamed_in], &mut early);
+                    tracker.associate_early(sweep_start, &early);
+                }
             }
+            early_associated.push(tracker.odometry().early_correspondences());
             let t0 = Instant::now();
             picked_early.0 += front_end.sectors_picked();
             picked_early.1 += config.features.sectors.max(1);
@@ -174,9 +188,17 @@ pub fn run(args: BenchArgs) -> Result<()> {
         total.len()
     );
     say!(
-        "  {} of {} feature sectors picked before the last packet",
+        "  {} of {} feature sectors picked before the last packet, median {} correspondences made \
+         by then",
         picked_early.0,
-        picked_early.1
+        picked_early.1,
+        {
+            early_associated.sort_unstable();
+            early_associated
+                .get(early_associated.len() / 2)
+                .copied()
+                .unwrap_or(0)
+        }
     );
     if site_map.is_some() {
         say!(

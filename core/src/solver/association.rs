@@ -1,6 +1,8 @@
 //! Association: each point's map correspondence (a line or plane fitted through its nearest
 //! map neighbours, with the residual's weight), kept between alignments of the same points.
 
+use rustc_hash::FxHashMap;
+
 use super::*;
 
 /// A geometric correspondence fixed for one round: residual `e = P·(T·p − c)`, where `P` is the
@@ -174,4 +176,115 @@ pub(super) fn residual_weight(
 pub fn angular_weight(lever_sq: f64, config: &SolverConfig) -> f64 {
     let noise = config.plane_noise * config.plane_noise;
     noise / (noise + lever_sq * config.angular_noise * config.angular_noise)
+}
+
+/// Correspondences made before a sweep's close for the edges and planes picked early, by the
+/// point's index in its scan: at the close, [`Self::seed`] hands them to the sweep's first
+/// alignment, which keeps each one its point still meets there (within
+/// [`SolverConfig::reassociation_distance`] of where it was made, the rule every later round
+/// applies) and searches the others. Made against the maps as they are: whatever changes the
+/// maps must [`Self::clear`] them.
+#[derive(Debug, Default, Clone)]
+pub struct EarlyCorrespondences {
+    /// The sweep they were made for: its first return's time, ns.
+    sweep: u64,
+    edges: FxHashMap<u32, Early>,
+    planes: FxHashMap<u32, Early>,
+}
+
+/// One early correspondence: where (world frame) and what.
+#[derive(Debug, Clone, Copy)]
+struct Early {
+    at: Vector3<f64>,
+    model: Option<Model>,
+}
+
+impl EarlyCorrespondences {
+    /// Forgets them all.
+    pub fn clear(&mut self) {
+        self.edges.clear();
+        self.planes.clear();
+    }
+
+    /// How many there are.
+    pub fn len(&self) -> usize {
+        self.edges.len() + self.planes.len()
+    }
+
+    /// None made.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Associates, at `pose`, the edges and planes of sweep `sweep` (its first return's time)
+    /// not associated yet: each as (its return's index in the scan, the point in the sensor
+    /// frame at the reference time `pose` is for). Those of another sweep are dropped first.
+    pub fn associate(
+        &mut self,
+        sweep: u64,
+        pose: &Isometry3<f64>,
+        (edges, planes): (
+            impl Iterator<Item = (u32, Vector3<f64>)>,
+            impl Iterator<Item = (u32, Vector3<f64>)>,
+        ),
+        maps: MapView<'_>,
+        config: &SolverConfig,
+    ) {
+        if sweep != self.sweep {
+            self.clear();
+            self.sweep = sweep;
+        }
+        let mut neighbours = Vec::with_capacity(8);
+        let line = |_: &_, covariance: &_, _: &_| line_model(config, covariance);
+        let plane =
+            |center: &_, covariance: &_, near: &_| plane_model(config, center, covariance, near);
+        for (id, p) in edges {
+            self.edges.entry(id).or_insert_with(|| {
+                let q = (pose * Point3::from(p)).coords;
+                let model = associate(pose, &p, &q, maps.edges, config, &mut neighbours, &line);
+                Early { at: q, model }
+            });
+        }
+        for (id, p) in planes {
+            self.planes.entry(id).or_insert_with(|| {
+                let q = (pose * Point3::from(p)).coords;
+                let model = associate(pose, &p, &q, maps.planes, config, &mut neighbours, &plane);
+                Early { at: q, model }
+            });
+        }
+    }
+
+    /// Starts `kept` for a sweep's first alignment from `pose`: the points `input` holds, whose
+    /// returns' indices in the scan are `ids` (edges, planes), take the early correspondence
+    /// made for their return, if any, with the residual's point and scale as they are now (the
+    /// early one was deskewed to another reference time).
+    pub fn seed(
+        &self,
+        kept: &mut Correspondences,
+        (edges, planes): (&[u32], &[u32]),
+        input: &AlignmentInput,
+        pose: &Isometry3<f64>,
+        config: &SolverConfig,
+    ) {
+        kept.clear();
+        let sets = [
+            (&mut kept.edges, edges, &input.edges, &self.edges),
+            (&mut kept.planes, planes, &input.planes, &self.planes),
+        ];
+        for (links, ids, points, early) in sets {
+            for (id, p) in ids.iter().zip(points) {
+                let found = early.get(id);
+                links
+                    .at
+                    .push(found.map_or(Vector3::repeat(f64::INFINITY), |e| e.at));
+                links
+                    .models
+                    .push(found.and_then(|e| e.model).map(|m| Model {
+                        point: *p,
+                        scale: residual_weight(pose, p, &m.shape, config).sqrt(),
+                        ..m
+                    }));
+            }
+        }
+    }
 }

@@ -25,7 +25,7 @@ mod step;
 mod tests;
 
 use association::*;
-pub use association::{angular_weight, Correspondences};
+pub use association::{angular_weight, Correspondences, EarlyCorrespondences};
 use degeneracy::*;
 use residuals::*;
 use shapes::*;

@@ -14,6 +14,15 @@ use super::health::{send_beating, Heartbeats, Stage, IDLE_BEAT};
 use super::receive::{Arrival, Returns};
 use super::sweeps::LabelledSweep;
 
+/// What the front end hands the odometry.
+pub(super) enum ToOdometry {
+    /// Edges and planes of the open sweep picked before its close, for the odometry to
+    /// associate while the rest streams in; `sweep` is the time of its first return.
+    Picked { sweep: u64, features: SweepFeatures },
+    /// A closed sweep's features.
+    Closed(Featured),
+}
+
 /// A sweep's features on their way to the odometry.
 pub(super) struct Featured {
     pub(super) features: SweepFeatures,
@@ -56,13 +65,16 @@ pub fn scan_of<'a>(sweep: &Sweep, out: &'a mut Vec<ScanPoint>) -> Option<Scan<'a
 }
 
 /// The front end's thread: features of each sweep, until the receive stage is gone. The open
-/// sweep's returns are calibrated as they arrive; at its close only the rest is left.
+/// sweep's returns are calibrated as they arrive (live; with `stream_closed`, a replay's, each
+/// closed sweep is streamed in a packet's worth at a time as it would have arrived, so that it
+/// goes through the same steps the same way at any pace), and each sector's features picked
+/// are handed to the odometry as soon as they are; at the close only the rest is left.
 pub(super) fn run_front_end(
     config: &OdometryConfig,
-    label_returns: bool,
+    (label_returns, stream_closed): (bool, bool),
     input: &Receiver<Arrival>,
     returns: &Receiver<Returns>,
-    output: &Sender<Featured>,
+    output: &Sender<ToOdometry>,
     heartbeats: &Heartbeats,
 ) {
     let mut front_end = FrontEnd::new(config);
@@ -73,6 +85,7 @@ pub(super) fn run_front_end(
     let mut process = |arrival: Arrival, open: &mut OpenSweep, front_end: &mut FrontEnd| {
         let begin = Instant::now();
         let index = arrival.sweep.index;
+        let packets = arrival.sweep.packets_received as usize;
         let scan = scan_of(&arrival.sweep, &mut points);
         let stamp_offset_ns = arrival.sweep.stamp_offset_ns;
         if let Some(r) = &arrival.recycler {
@@ -83,6 +96,16 @@ pub(super) fn run_front_end(
         };
         if !open.closes(index) {
             front_end.begin(scan.rings);
+            if stream_closed {
+                // The last packet's returns come with the closed sweep.
+                let per_packet = scan.points.len().div_ceil(packets.max(1));
+                let last_packet = scan.points.len().saturating_sub(per_packet);
+                let mut picked = Picked::default();
+                for end in (per_packet..=last_packet).step_by(per_packet.max(1)) {
+                    front_end.stream(&scan.points[end - per_packet..end]);
+                    picked.offer(front_end, &scan.points[..end], output, heartbeats)?;
+                }
+            }
         }
         open.rings = scan.rings;
         let mut features = SweepFeatures::default();
@@ -96,7 +119,12 @@ pub(super) fn run_front_end(
             front_end_ms,
             returns,
         };
-        send_beating(output, message, heartbeats, Stage::FrontEnd)
+        send_beating(
+            output,
+            ToOdometry::Closed(message),
+            heartbeats,
+            Stage::FrontEnd,
+        )
     };
     let mut admit = |arrival: Arrival, open: &mut OpenSweep, front_end: &mut FrontEnd| {
         for a in start.admit(arrival).into_iter().flatten() {
@@ -139,7 +167,7 @@ pub(super) fn run_front_end(
                 } else {
                     Ok(())
                 }
-                .map(|()| open.stream(&r, &mut front_end))
+                .and_then(|()| open.stream(&r, &mut front_end, output, heartbeats))
             }
         };
         if result.is_err() {
@@ -152,11 +180,47 @@ pub(super) fn run_front_end(
     }
 }
 
+/// Hands the odometry the features of the open sweep picked since the last offer.
+#[derive(Debug, Default)]
+struct Picked {
+    /// Sectors of the open sweep whose features went.
+    sectors: usize,
+}
+
+impl Picked {
+    /// Offers what the front end picked of the returns `streamed` so far.
+    fn offer(
+        &mut self,
+        front_end: &mut FrontEnd,
+        streamed: &[ScanPoint],
+        output: &Sender<ToOdometry>,
+        heartbeats: &Heartbeats,
+    ) -> Result<(), ()> {
+        let (Some(first), picked) = (streamed.first(), front_end.sectors_picked()) else {
+            return Ok(());
+        };
+        if picked <= self.sectors {
+            return Ok(());
+        }
+        self.sectors = picked;
+        let mut features = SweepFeatures::default();
+        front_end.early_features(streamed, &mut features);
+        let message = ToOdometry::Picked {
+            sweep: first.time_ns,
+            features,
+        };
+        send_beating(output, message, heartbeats, Stage::FrontEnd)
+    }
+}
+
 /// The front end's view of the sweep streaming in.
 #[derive(Debug)]
 struct OpenSweep {
     /// The sweep streamed into the front end, and how many of its returns.
     streaming: Option<(u64, usize)>,
+    /// Its returns so far.
+    points: Vec<ScanPoint>,
+    picked: Picked,
     /// The last sweep processed.
     done: Option<u64>,
     /// The ring count of the last sweep processed: the next one's, for streaming.
@@ -167,6 +231,8 @@ impl Default for OpenSweep {
     fn default() -> Self {
         Self {
             streaming: None,
+            points: Vec::new(),
+            picked: Picked::default(),
             done: None,
             rings: 16,
         }
@@ -180,27 +246,39 @@ impl OpenSweep {
     }
 
     /// Streams returns into the front end if they continue what it holds or start a newer
-    /// sweep; drops them otherwise (an old sweep's, or after a gap).
-    fn stream(&mut self, r: &Returns, front_end: &mut FrontEnd) {
+    /// sweep, and offers the odometry what it picked; drops them otherwise (an old sweep's, or
+    /// after a gap).
+    fn stream(
+        &mut self,
+        r: &Returns,
+        front_end: &mut FrontEnd,
+        output: &Sender<ToOdometry>,
+        heartbeats: &Heartbeats,
+    ) -> Result<(), ()> {
         match self.streaming {
             Some((s, n)) if s == r.sweep => {
                 if n != r.offset {
                     // A gap: the sweep is calibrated whole at its close.
                     self.streaming = None;
                     front_end.begin(self.rings);
-                    return;
+                    return Ok(());
                 }
             }
             _ if r.offset == 0 && self.is_newer(r.sweep) => {
                 front_end.begin(self.rings);
                 self.streaming = Some((r.sweep, 0));
+                self.points.clear();
+                self.picked = Picked::default();
             }
-            _ => return,
+            _ => return Ok(()),
         }
         front_end.stream(&r.points);
+        self.points.extend_from_slice(&r.points);
         if let Some((_, n)) = &mut self.streaming {
             *n += r.points.len();
         }
+        self.picked
+            .offer(front_end, &self.points, output, heartbeats)
     }
 
     /// Sweep `index` is being processed: whether it is the one streamed in.
@@ -317,33 +395,48 @@ mod tests {
         };
         let mut front_end = FrontEnd::new(&OdometryConfig::default());
         let mut open = OpenSweep::default();
+        let (tx, _rx) = crossbeam_channel::unbounded();
+        let heartbeats = Heartbeats::new(Instant::now(), false);
 
         // Sweep 5 from its start, in two batches, then closed: what was streamed is used.
-        open.stream(&returns(5, 0, 32), &mut front_end);
-        open.stream(&returns(5, 32, 48), &mut front_end);
+        open.stream(&returns(5, 0, 32), &mut front_end, &tx, &heartbeats)
+            .unwrap();
+        open.stream(&returns(5, 32, 48), &mut front_end, &tx, &heartbeats)
+            .unwrap();
         assert_eq!(front_end.streamed(), 80);
         assert!(open.closes(5));
 
         // A late batch of the sweep closed, an older sweep's, or a sweep joined midway: dropped.
         for (sweep, offset) in [(5, 80), (4, 0), (6, 16)] {
-            open.stream(&returns(sweep, offset, 16), &mut front_end);
+            open.stream(
+                &returns(sweep, offset, 16),
+                &mut front_end,
+                &tx,
+                &heartbeats,
+            )
+            .unwrap();
             assert_eq!(front_end.streamed(), 80, "sweep {sweep} from {offset}");
         }
 
         // Sweep 6 from its start, then a batch missed: the rest of it is not streamed, and it
         // is processed whole at its close.
-        open.stream(&returns(6, 0, 32), &mut front_end);
+        open.stream(&returns(6, 0, 32), &mut front_end, &tx, &heartbeats)
+            .unwrap();
         assert_eq!(front_end.streamed(), 32);
-        open.stream(&returns(6, 48, 16), &mut front_end);
-        open.stream(&returns(6, 64, 16), &mut front_end);
+        open.stream(&returns(6, 48, 16), &mut front_end, &tx, &heartbeats)
+            .unwrap();
+        open.stream(&returns(6, 64, 16), &mut front_end, &tx, &heartbeats)
+            .unwrap();
         assert_eq!(front_end.streamed(), 0);
         assert!(!open.closes(6));
 
         // Sweep 7 closes while 8 streams in: 7 was not streamed, and 8's next batches are not
         // taken (it is processed whole).
-        open.stream(&returns(8, 0, 16), &mut front_end);
+        open.stream(&returns(8, 0, 16), &mut front_end, &tx, &heartbeats)
+            .unwrap();
         assert!(!open.closes(7));
-        open.stream(&returns(8, 16, 16), &mut front_end);
+        open.stream(&returns(8, 16, 16), &mut front_end, &tx, &heartbeats)
+            .unwrap();
         assert!(open.streaming.is_none());
         assert!(!open.closes(8));
     }

@@ -67,7 +67,7 @@ use crate::simulated::SimulatedSensor;
 use backend_link::{
     run_backend, run_localiser, BackEndLink, HintSource, Lockstep, MapSaver, BACK_END_QUEUE,
 };
-use front_end::{run_front_end, Featured};
+use front_end::{run_front_end, ToOdometry};
 use health::Heartbeats;
 use map_updates::{run_map_publisher, HeldMap, MapEvent, MapOutlet, MAP_EVENT_QUEUE};
 use odometry::{run_odometry, Estimated, OdometryOutcome};
@@ -353,7 +353,10 @@ pub fn run(mut options: Options) -> Result<Summary> {
     let (sweep_tx, sweep_rx) = bounded::<Arrival>(queue);
     // Returns of the open sweep: a sweep's packets and then some, never waited for.
     let (returns_tx, returns_rx) = bounded::<Returns>(OPEN_RETURNS_QUEUE);
-    let (feature_tx, feature_rx) = bounded::<Featured>(queue);
+    let (feature_tx, feature_rx) = bounded::<ToOdometry>(queue);
+    // Live, the open sweep streams in from the socket; a replay's front end streams each closed
+    // sweep in itself.
+    let stream_closed = !matches!(options.input, Input::Live { .. });
     let (estimate_tx, estimate_rx) = bounded::<Estimated>(queue.max(4));
 
     let receiver = {
@@ -378,7 +381,6 @@ pub fn run(mut options: Options) -> Result<Summary> {
                     pace,
                     &stop,
                     &sweep_tx,
-                    &returns_tx,
                     &heartbeats,
                     &counters,
                 )
@@ -395,7 +397,6 @@ pub fn run(mut options: Options) -> Result<Summary> {
                     Pace::Max,
                     &stop,
                     &sweep_tx,
-                    &returns_tx,
                     &heartbeats,
                     &counters,
                 )
@@ -457,7 +458,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
         spawn("glint-features", move || {
             run_front_end(
                 &config,
-                label_returns,
+                (label_returns, stream_closed),
                 &sweep_rx,
                 &returns_rx,
                 &feature_tx,

@@ -12,7 +12,7 @@ use glint_core::world_map::WorldMap;
 use nalgebra::{Isometry3, Vector3};
 
 use super::backend_link::{BackEndLink, Lockstep};
-use super::front_end::Featured;
+use super::front_end::ToOdometry;
 use super::health::{recv_beating, send_beating, Heartbeats, Stage};
 use super::sweeps::LabelledSweep;
 
@@ -83,14 +83,21 @@ pub(super) fn run_odometry(
     known: Option<Vec<StampedPose>>,
     map_voxel: Option<f32>,
     mut back_end: Option<BackEndLink>,
-    input: &Receiver<Featured>,
+    input: &Receiver<ToOdometry>,
     output: &Sender<Estimated>,
     heartbeats: &Heartbeats,
 ) -> OdometryOutcome {
     let mut world = map_voxel.map(WorldMap::new);
     // The last sweep's map update, ms: reported with the next sweep, as it runs after the pose.
     let mut map_update_ms = 0.0;
-    while let Some(mut featured) = recv_beating(input, heartbeats, Stage::Odometry) {
+    while let Some(message) = recv_beating(input, heartbeats, Stage::Odometry) {
+        let mut featured = match message {
+            ToOdometry::Picked { sweep, features } => {
+                tracker.associate_early(sweep, &features);
+                continue;
+            }
+            ToOdometry::Closed(featured) => featured,
+        };
         let returns = featured.returns.take();
         let features = &featured.features;
         let start = Instant::now();
