@@ -176,6 +176,20 @@ impl SweepView<'_> {
     }
 }
 
+/// The edges and planes of `features`, returns of `scan` (which `image` has calibrated), as
+/// features of `scan`, whose reference time may be another, into `out`.
+pub(crate) fn features_of(
+    scan: &Scan<'_>,
+    image: &RangeImage,
+    features: &SweepFeatures,
+    out: &mut SweepFeatures,
+) {
+    out.restart(scan);
+    let of = |f: &Feature| feature(scan, image, f.point as usize);
+    out.edges.extend(features.edges.iter().map(of));
+    out.planes.extend(features.planes.iter().map(of));
+}
+
 /// Return `i` of `scan`, which `image` has calibrated, as a feature.
 fn feature(scan: &Scan<'_>, image: &RangeImage, i: usize) -> Feature {
     let p = &scan.points[i];

@@ -77,6 +77,23 @@ impl FrontEnd {
         self.streamed = None;
     }
 
+    /// The edges and planes of `features`, which [`Self::process`] selected from `points`, with
+    /// the sweep's first return as the reference time, as [`Self::early_features`] hands them
+    /// out, into `out`: for the odometry to associate those it was not handed early.
+    pub fn features_from_start(
+        &self,
+        points: &[ScanPoint],
+        features: &SweepFeatures,
+        out: &mut SweepFeatures,
+    ) {
+        let scan = Scan {
+            points,
+            rings: self.image.rings(),
+            reference_ns: points.first().map_or(0, |p| p.time_ns),
+        };
+        crate::features::features_of(&scan, &self.image, features, out);
+    }
+
     /// Feature sectors of the open sweep already picked (see [`FeatureSelector`]): the
     /// sectors left for its close are the others.
     pub fn sectors_picked(&self) -> usize {
@@ -85,13 +102,14 @@ impl FrontEnd {
 
     /// The edges and planes of the open sweep picked since the last call (since
     /// [`Self::begin`] the first time), as features of `streamed` (the returns streamed in
-    /// since [`Self::begin`]) with the last of them as the reference time, into `out`: what
-    /// the odometry can associate before the sweep closes.
+    /// since [`Self::begin`]) with the first of them as the reference time, into `out`: what
+    /// the odometry can associate before the sweep closes (see
+    /// [`crate::odometry::Odometry::associate_early`]).
     pub fn early_features(&mut self, streamed: &[ScanPoint], out: &mut SweepFeatures) {
         let scan = Scan {
             points: streamed,
             rings: self.image.rings(),
-            reference_ns: streamed.last().map_or(0, |p| p.time_ns),
+            reference_ns: streamed.first().map_or(0, |p| p.time_ns),
         };
         self.handed_early =
             self.selector

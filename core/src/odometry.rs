@@ -306,12 +306,14 @@ impl Odometry {
         }
     }
 
-    /// Associates, at the pose predicted for their reference time, the edges and planes of the
-    /// open sweep picked before its close (`features`, with the time of the last return
-    /// streamed in as their reference, and `sweep` the time of the sweep's first return), so
-    /// that its alignment finds them associated (see [`EarlyCorrespondences`]). Only once the
-    /// maps exist and between a sweep's [`Self::update_maps`] and the next sweep's alignment;
-    /// the pose is predicted from the motion so far, as the alignment's will be.
+    /// Associates, at the pose predicted for the sweep's first return, the edges and planes of
+    /// the open sweep (`features`, with that return as their reference time, `sweep` its
+    /// time) not associated yet, so that its alignment finds them associated (see
+    /// [`EarlyCorrespondences`]): those picked before its close as they are, the rest with the
+    /// closed sweep. What each gets depends on it, the maps and the motion so far only, so the
+    /// alignment is the same however much of the sweep streamed in before its close. Only once
+    /// the maps exist and between a sweep's [`Self::update_maps`] and the next sweep's
+    /// alignment.
     pub fn associate_early(&mut self, sweep: u64, features: &SweepFeatures) {
         if self.last.is_none() || self.planes.is_empty() || self.pending_growth.is_some() {
             return;
@@ -934,12 +936,26 @@ mod tests {
         }
 
         fn feed(&mut self, points: &[ScanPoint], end_ns: u64) -> OdometryEstimate {
+            self.select(points, end_ns);
+            self.odometry.register(&self.features, |_| {})
+        }
+
+        fn select(&mut self, points: &[ScanPoint], end_ns: u64) {
             let scan = Scan {
                 points,
                 rings: 16,
                 reference_ns: end_ns,
             };
             self.front_end.process(&scan, &mut self.features);
+        }
+
+        /// [`Self::feed`], the sweep's edges and planes not associated early associated first,
+        /// as the daemon does.
+        fn feed_rest(&mut self, points: &[ScanPoint], end_ns: u64) -> OdometryEstimate {
+            self.select(points, end_ns);
+            let mut rest = SweepFeatures::default();
+            (self.front_end).features_from_start(points, &self.features, &mut rest);
+            self.odometry.associate_early(points[0].time_ns, &rest);
             self.odometry.register(&self.features, |_| {})
         }
     }
@@ -1084,16 +1100,19 @@ mod tests {
     #[test]
     fn correspondences_made_before_the_close_track_as_those_made_after() {
         // One odometry gets each sweep's early picks associated as the sweep streams in, a
-        // packet's worth at a time; the other only the closed sweep. The early ones are made
-        // at another reference time (the last return streamed in), so the poses may differ in
-        // the last bits, not more.
+        // packet's worth at a time, and the rest at the close; another all of them at the
+        // close: the same poses, bit for bit. A third associates at the close as it aligns:
+        // the early correspondences are made at another reference time (the sweep's first
+        // return), so the poses may differ in the last bits, not more.
         let config = OdometryConfig::default();
         let mut plain = Rig::new(&config);
+        let mut closed = Rig::new(&config);
         let mut early = Rig::new(&config);
         let mut picked = SweepFeatures::default();
         for k in 0..12u64 {
             let (points, end_ns) = sweep_through_the_room(k, -3.0, 1.5);
             let expected = plain.feed(&points, end_ns);
+            let at_close = closed.feed_rest(&points, end_ns);
 
             early.front_end.begin(16);
             let mut sectors = 0;
@@ -1106,10 +1125,11 @@ mod tests {
                 }
             }
             let made = early.odometry.early_correspondences();
-            let got = early.feed(&points, end_ns);
+            let got = early.feed_rest(&points, end_ns);
             if k >= 2 {
                 assert!(made > 100, "sweep {k}: {made} made early");
             }
+            assert_eq!(got.pose, at_close.pose, "sweep {k}");
             let apart = got.pose.inverse() * expected.pose;
             assert!(
                 apart.translation.vector.norm() < 1e-3 && apart.rotation.angle() < 1e-4,

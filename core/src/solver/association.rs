@@ -257,7 +257,7 @@ impl EarlyCorrespondences {
     /// Starts `kept` for a sweep's first alignment from `pose`: the points `input` holds, whose
     /// returns' indices in the scan are `ids` (edges, planes), take the early correspondence
     /// made for their return, if any, with the residual's point and scale as they are now (the
-    /// early one was deskewed to another reference time).
+    /// early one was deskewed to the sweep's first return).
     pub fn seed(
         &self,
         kept: &mut Correspondences,

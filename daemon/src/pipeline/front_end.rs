@@ -65,13 +65,11 @@ pub fn scan_of<'a>(sweep: &Sweep, out: &'a mut Vec<ScanPoint>) -> Option<Scan<'a
 }
 
 /// The front end's thread: features of each sweep, until the receive stage is gone. The open
-/// sweep's returns are calibrated as they arrive (live; with `stream_closed`, a replay's, each
-/// closed sweep is streamed in a packet's worth at a time as it would have arrived, so that it
-/// goes through the same steps the same way at any pace), and each sector's features picked
-/// are handed to the odometry as soon as they are; at the close only the rest is left.
+/// sweep's returns are calibrated as they arrive, and each sector's features handed to the
+/// odometry as soon as they are picked; at the close only the rest is left.
 pub(super) fn run_front_end(
     config: &OdometryConfig,
-    (label_returns, stream_closed): (bool, bool),
+    label_returns: bool,
     input: &Receiver<Arrival>,
     returns: &Receiver<Returns>,
     output: &Sender<ToOdometry>,
@@ -85,7 +83,6 @@ pub(super) fn run_front_end(
     let mut process = |arrival: Arrival, open: &mut OpenSweep, front_end: &mut FrontEnd| {
         let begin = Instant::now();
         let index = arrival.sweep.index;
-        let packets = arrival.sweep.packets_received as usize;
         let scan = scan_of(&arrival.sweep, &mut points);
         let stamp_offset_ns = arrival.sweep.stamp_offset_ns;
         if let Some(r) = &arrival.recycler {
@@ -96,20 +93,19 @@ pub(super) fn run_front_end(
         };
         if !open.closes(index) {
             front_end.begin(scan.rings);
-            if stream_closed {
-                // The last packet's returns come with the closed sweep.
-                let per_packet = scan.points.len().div_ceil(packets.max(1));
-                let last_packet = scan.points.len().saturating_sub(per_packet);
-                let mut picked = Picked::default();
-                for end in (per_packet..=last_packet).step_by(per_packet.max(1)) {
-                    front_end.stream(&scan.points[end - per_packet..end]);
-                    picked.offer(front_end, &scan.points[..end], output, heartbeats)?;
-                }
-            }
         }
         open.rings = scan.rings;
         let mut features = SweepFeatures::default();
         front_end.process(&scan, &mut features);
+        // The rest of the sweep's edges and planes for the odometry to associate as it did
+        // those handed out early (it skips those): the same whatever streamed in before.
+        let mut rest = SweepFeatures::default();
+        front_end.features_from_start(scan.points, &features, &mut rest);
+        let rest = ToOdometry::Picked {
+            sweep: scan.points[0].time_ns,
+            features: rest,
+        };
+        send_beating(output, rest, heartbeats, Stage::FrontEnd)?;
         let front_end_ms = begin.elapsed().as_secs_f64() * 1e3;
         let returns = label_returns.then(|| LabelledSweep::of(&scan, front_end, &features));
         let message = Featured {

@@ -354,9 +354,6 @@ pub fn run(mut options: Options) -> Result<Summary> {
     // Returns of the open sweep: a sweep's packets and then some, never waited for.
     let (returns_tx, returns_rx) = bounded::<Returns>(OPEN_RETURNS_QUEUE);
     let (feature_tx, feature_rx) = bounded::<ToOdometry>(queue);
-    // Live, the open sweep streams in from the socket; a replay's front end streams each closed
-    // sweep in itself.
-    let stream_closed = !matches!(options.input, Input::Live { .. });
     let (estimate_tx, estimate_rx) = bounded::<Estimated>(queue.max(4));
 
     let receiver = {
@@ -381,6 +378,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
                     pace,
                     &stop,
                     &sweep_tx,
+                    &returns_tx,
                     &heartbeats,
                     &counters,
                 )
@@ -397,6 +395,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
                     Pace::Max,
                     &stop,
                     &sweep_tx,
+                    &returns_tx,
                     &heartbeats,
                     &counters,
                 )
@@ -458,7 +457,7 @@ pub fn run(mut options: Options) -> Result<Summary> {
         spawn("glint-features", move || {
             run_front_end(
                 &config,
-                (label_returns, stream_closed),
+                label_returns,
                 &sweep_rx,
                 &returns_rx,
                 &feature_tx,

@@ -1,11 +1,10 @@
 //! The receive stage: packets from a capture (paced, waiting for the front end so a replay
 //! processes every sweep) or from the sensor's sockets (never waiting: a sweep that finds the
 //! front end's queue full is dropped whole and counted), closed into sweeps for the front end.
-//! Either way only one sensor's packets are decoded; another's are refused and counted. Live,
-//! the open sweep's returns are also offered to the front end as they arrive ([`OpenReturns`]),
-//! so it can calibrate them before the sweep closes; that stream never waits and is never
-//! needed: what it misses the front end does from the closed sweep. (A replay's front end
-//! streams each closed sweep in itself, the same way at any pace.)
+//! Either way only one sensor's packets are decoded; another's are refused and counted. The
+//! open sweep's returns are also offered to the front end as they arrive ([`OpenReturns`]), so
+//! it can calibrate them before the sweep closes; that stream never waits and is never needed:
+//! what it misses the front end does from the closed sweep.
 
 use std::net::{IpAddr, Ipv4Addr};
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
@@ -148,10 +147,12 @@ pub(super) fn read_payloads(
     pace: Pace,
     stop: &AtomicBool,
     out: &Sender<Arrival>,
+    returns: &Sender<Returns>,
     heartbeats: &Heartbeats,
     counters: &ReceiveCounters,
 ) -> Result<CaptureReport> {
     let mut clock: Option<(u64, Instant)> = None;
+    let mut open = OpenReturns::new(returns);
     let downstream_gone = std::cell::Cell::new(false);
     replay_payloads(
         payloads,
@@ -163,6 +164,8 @@ pub(super) fn read_payloads(
             if stop.load(Ordering::Relaxed) || downstream_gone.get() {
                 return false;
             }
+            // What the previous packet added, before waiting for this one's time.
+            open.offer(stream);
             if let Pace::Factor(f) = pace {
                 let (t0, w0) = *clock.get_or_insert((record_ns, Instant::now()));
                 let due =
