@@ -16,8 +16,9 @@ use super::sweeps::LabelledSweep;
 
 /// What the front end hands the odometry.
 pub(super) enum ToOdometry {
-    /// Edges and planes of the open sweep picked before its close, for the odometry to
-    /// associate while the rest streams in; `sweep` is the time of its first return.
+    /// Edges and planes of a sweep for the odometry to associate, deskewed to its first return
+    /// (`sweep`, its time): those picked before its close while the rest streams in, and all
+    /// of them with the closed sweep (the odometry skips those it has).
     Picked { sweep: u64, features: SweepFeatures },
     /// A closed sweep's features.
     Closed(Featured),
