@@ -80,8 +80,6 @@ pub struct Odometry {
     correspondences: Correspondences,
     /// Correspondences of the open sweep's features picked before its close.
     early: EarlyCorrespondences,
-    /// The early features deskewed (scratch).
-    early_input: AlignmentInput,
     sweeps: u64,
     known_poses: bool,
     /// The pose of the last sweep that grew the maps.
@@ -121,7 +119,6 @@ impl Odometry {
             input: AlignmentInput::default(),
             correspondences: Correspondences::default(),
             early: EarlyCorrespondences::default(),
-            early_input: AlignmentInput::default(),
             sweeps: 0,
             known_poses: false,
             mapped_at: None,
@@ -319,27 +316,19 @@ impl Odometry {
             return;
         }
         let prediction = self.prediction(features.reference_ns);
-        deskew_into(
-            &mut self.early_input,
-            features,
-            &self.velocity,
-            &self.config,
-            &self.deskew_cache,
-        );
+        let skew = Deskew::new(&self.velocity, &self.deskew_cache);
         let maps = MapView {
             edges: &self.edges,
             planes: &self.planes,
             intensity: &self.intensity,
         };
-        let edges = features.edges.iter().map(|f| f.point);
-        let planes = kept_planes(features, &self.config).map(|f| f.point);
+        let edges = features.edges.iter().map(|f| (f.point, f));
+        let planes = kept_planes(features, &self.config).map(|f| (f.point, f));
         self.early.associate(
             sweep,
             &prediction,
-            (
-                edges.zip(self.early_input.edges.iter().copied()),
-                planes.zip(self.early_input.planes.iter().copied()),
-            ),
+            (edges, planes),
+            |f| skew.apply(f),
             maps,
             &self.config.solver,
         );

@@ -217,16 +217,18 @@ impl EarlyCorrespondences {
     }
 
     /// Associates, at `pose`, the edges and planes of sweep `sweep` (its first return's time)
-    /// not associated yet: each as (its return's index in the scan, the point in the sensor
-    /// frame at the reference time `pose` is for). Those of another sweep are dropped first.
-    pub fn associate(
+    /// not associated yet: each given as its return's index in the scan and what `deskew` turns
+    /// into the point in the sensor frame at the reference time `pose` is for (only those not
+    /// associated yet are deskewed). Those of another sweep are dropped first.
+    pub fn associate<T>(
         &mut self,
         sweep: u64,
         pose: &Isometry3<f64>,
         (edges, planes): (
-            impl Iterator<Item = (u32, Vector3<f64>)>,
-            impl Iterator<Item = (u32, Vector3<f64>)>,
+            impl Iterator<Item = (u32, T)>,
+            impl Iterator<Item = (u32, T)>,
         ),
+        deskew: impl Fn(T) -> Vector3<f64>,
         maps: MapView<'_>,
         config: &SolverConfig,
     ) {
@@ -238,15 +240,17 @@ impl EarlyCorrespondences {
         let line = |_: &_, covariance: &_, _: &_| line_model(config, covariance);
         let plane =
             |center: &_, covariance: &_, near: &_| plane_model(config, center, covariance, near);
-        for (id, p) in edges {
+        for (id, f) in edges {
             self.edges.entry(id).or_insert_with(|| {
+                let p = deskew(f);
                 let q = (pose * Point3::from(p)).coords;
                 let model = associate(pose, &p, &q, maps.edges, config, &mut neighbours, &line);
                 Early { at: q, model }
             });
         }
-        for (id, p) in planes {
+        for (id, f) in planes {
             self.planes.entry(id).or_insert_with(|| {
+                let p = deskew(f);
                 let q = (pose * Point3::from(p)).coords;
                 let model = associate(pose, &p, &q, maps.planes, config, &mut neighbours, &plane);
                 Early { at: q, model }
