@@ -83,6 +83,9 @@ pub struct FeatureSelector {
     picks: Picks,
     /// Per return of the sweep: handed to the intensity map.
     kept: Vec<bool>,
+    /// Plane picks of the last sweep, before the cap: the open sweep's planes are thinned as
+    /// if it had as many (see [`PlaneThinning`]).
+    last_planes: usize,
 }
 
 /// How the open sweep's rings are cut into sectors, and the azimuth step its thresholds follow:
@@ -99,9 +102,12 @@ struct SectorPlan {
 }
 
 /// How far (as a share of a sector) a ring's measured length may miss its plan and the sweep
-/// keep the picks made by it: 1/60 of the ring at six sectors, which moves a few returns at
-/// each bound from one sector to the next.
-const PLAN_TOLERANCE: f32 = 0.1;
+/// keep the picks made by it: less than a sector, so that no bound moves past the next one's
+/// planned place. A ring's entries are its returns, not its firings: a ring that sees sky over
+/// part of the yard counts tens of returns more or fewer from sweep to sweep (half a sector in
+/// the median on an open yard), and its bounds, cut by count, sit no nearer any azimuth than
+/// that anyway.
+const PLAN_TOLERANCE: f32 = 1.0;
 
 impl SectorPlan {
     /// The roughness entries of sector `sector` of ring `r`, which has `measured` of them so
@@ -502,7 +508,9 @@ impl FeatureSelector {
         out.planes
             .extend(self.picks.planes.iter().map(|&i| sweep.feature(i as usize)));
         self.picks.keep_strongest_intensity(&sweep, out);
-        keep_evenly(&mut out.planes, config.max_planes);
+        let picked = out.planes.len();
+        PlaneThinning::settled(config.max_planes, self.last_planes, picked).apply(&mut out.planes);
+        self.last_planes = picked;
         // In firing order, as the intensity map takes them.
         if scan.rings > 0 {
             for (i, _) in self.kept.iter().enumerate().filter(|(_, &kept)| kept) {
@@ -524,21 +532,32 @@ impl FeatureSelector {
         &self,
         scan: &Scan<'_>,
         image: &RangeImage,
+        config: &FeatureConfig,
         from: (usize, usize),
         out: &mut SweepFeatures,
     ) -> (usize, usize) {
         out.restart(scan);
-        let picked = |picks: &[u32], from: usize, into: &mut Vec<Feature>| {
-            into.extend(
-                picks
-                    .iter()
-                    .skip(from)
-                    .filter(|&&i| (i as usize) < scan.points.len())
-                    .map(|&i| feature(scan, image, i as usize)),
-            );
-        };
-        picked(&self.picks.edges, from.0, &mut out.edges);
-        picked(&self.picks.planes, from.1, &mut out.planes);
+        let picked =
+            |picks: &[u32], from: usize, keeps: &dyn Fn(usize) -> bool, into: &mut Vec<Feature>| {
+                into.extend(
+                    picks
+                        .iter()
+                        .enumerate()
+                        .skip(from)
+                        .filter(|&(j, &i)| (i as usize) < scan.points.len() && keeps(j))
+                        .map(|(_, &i)| feature(scan, image, i as usize)),
+                );
+            };
+        picked(&self.picks.edges, from.0, &|_| true, &mut out.edges);
+        // Those the planned thinning drops are left out: most sweeps keep it (see
+        // `PlaneThinning::settled`).
+        let thinning = PlaneThinning::planned(config.max_planes, self.last_planes);
+        picked(
+            &self.picks.planes,
+            from.1,
+            &|j| thinning.keeps(j),
+            &mut out.planes,
+        );
         (self.picks.edges.len(), self.picks.planes.len())
     }
 
@@ -720,18 +739,69 @@ impl Picks {
     }
 }
 
-/// Keeps at most `cap` of `features` (all of them for a cap of 0), spread evenly over them in
-/// their order: of every `len / cap` in a row, the last.
-fn keep_evenly(features: &mut Vec<Feature>, cap: usize) {
-    let len = features.len();
-    if cap == 0 || len <= cap {
-        return;
+/// Which of a sweep's plane picks, in their order, are kept under the cap `max_planes`: `cap`
+/// spread evenly over `of` (of every `of / cap` in a row, the last; all of them when `of` is
+/// within the cap or the cap is 0).
+///
+/// A pick's place in the order is known once it is picked, `of` only at the close. The
+/// thinning a sweep's planes are handed out with before the close is planned for as many as
+/// the last sweep picked; the close keeps it unless the sweep's own count would then keep more
+/// than [`THINNING_TOLERANCE`] of the cap more or fewer than the exact thinning, and thins
+/// exactly otherwise (the first sweep, a sweep entering a very different scene). Either way a
+/// sweep's planes follow from it and the one before, not from how it streamed in.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct PlaneThinning {
+    cap: usize,
+    of: usize,
+}
+
+/// How far the planes kept by the planned thinning may stray from the cap (as a share of it)
+/// before the close thins exactly.
+const THINNING_TOLERANCE: f64 = 0.1;
+
+impl PlaneThinning {
+    /// Planned for a sweep after one that picked `last` planes.
+    fn planned(cap: usize, last: usize) -> Self {
+        Self { cap, of: last }
     }
-    let mut i = 0;
-    features.retain(|_| {
-        i += 1;
-        (i - 1) * cap / len != i * cap / len
-    });
+
+    /// What the close keeps of `picked` planes, planned for `last`.
+    fn settled(cap: usize, last: usize, picked: usize) -> Self {
+        let exact = Self { cap, of: picked };
+        let planned = Self::planned(cap, last);
+        let off = planned.kept(picked).abs_diff(exact.kept(picked));
+        if (off as f64) <= THINNING_TOLERANCE * cap as f64 {
+            planned
+        } else {
+            exact
+        }
+    }
+
+    fn thins(&self) -> bool {
+        self.cap > 0 && self.of > self.cap
+    }
+
+    /// Whether the `j`th pick (from 0) is kept.
+    fn keeps(&self, j: usize) -> bool {
+        !self.thins() || j * self.cap / self.of != (j + 1) * self.cap / self.of
+    }
+
+    /// How many of `n` picks are kept.
+    fn kept(&self, n: usize) -> usize {
+        if self.thins() {
+            n * self.cap / self.of
+        } else {
+            n
+        }
+    }
+
+    fn apply(&self, features: &mut Vec<Feature>) {
+        let mut j = 0;
+        features.retain(|_| {
+            j += 1;
+            self.keeps(j - 1)
+        });
+    }
 }
 
 /// The spread (1σ) of the σᴳ that range noise alone produces at range `r` with `k` neighbours
@@ -815,6 +885,39 @@ mod tests {
             assert!(at_corner, "geometry-only edge away from the corner: {e:?}");
         }
         assert!(f.edges.iter().all(|e| e.dt <= 0.0));
+    }
+
+    #[test]
+    fn planned_plane_thinning_holds_while_the_count_stays_near_the_last() {
+        let cap = 2000;
+        // As many as planned: the exact thinning.
+        let exact = PlaneThinning::settled(cap, 3000, 3000);
+        assert_eq!(exact, PlaneThinning { cap, of: 3000 });
+        assert_eq!((0..3000).filter(|&j| exact.keeps(j)).count(), cap);
+        // A few more or fewer than the last sweep: the plan holds, about the cap is kept.
+        for picked in [2800, 3200] {
+            let thinning = PlaneThinning::settled(cap, 3000, picked);
+            assert_eq!(thinning, PlaneThinning::planned(cap, 3000));
+            let kept = (0..picked).filter(|&j| thinning.keeps(j)).count();
+            assert_eq!(kept, thinning.kept(picked));
+            assert!(kept.abs_diff(cap) <= cap / 10, "{kept}");
+        }
+        // Far from the plan (the first sweep, a new scene): exact.
+        assert_eq!(
+            PlaneThinning::settled(cap, 0, 3000),
+            PlaneThinning { cap, of: 3000 }
+        );
+        assert_eq!(
+            PlaneThinning::settled(cap, 3000, 6000),
+            PlaneThinning { cap, of: 6000 }
+        );
+        assert_eq!(
+            PlaneThinning::settled(cap, 6000, 2500),
+            PlaneThinning { cap, of: 2500 }
+        );
+        // Under the cap, or no cap: all kept.
+        assert_eq!(PlaneThinning::settled(cap, 1500, 1600).kept(1600), 1600);
+        assert_eq!(PlaneThinning::settled(0, 3000, 3100).kept(3100), 3100);
     }
 
     #[test]

@@ -111,9 +111,13 @@ impl FrontEnd {
             rings: self.image.rings(),
             reference_ns: streamed.first().map_or(0, |p| p.time_ns),
         };
-        self.handed_early =
-            self.selector
-                .early_features(&scan, &self.image, self.handed_early, out);
+        self.handed_early = self.selector.early_features(
+            &scan,
+            &self.image,
+            &self.config.features,
+            self.handed_early,
+            out,
+        );
     }
 
     /// How many rings of the sweep last processed had been streamed in and had to be

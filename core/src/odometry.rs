@@ -76,6 +76,10 @@ pub struct Odometry {
     last: Option<(u64, Isometry3<f64>)>,
     velocity: Vector6<f64>,
     input: AlignmentInput,
+    /// Whether `input` still waits to be deskewed with `velocity`, the motion the sweep's
+    /// alignment measured: only the maps' growth and a keyframe need it, so it is done there,
+    /// after the pose is out.
+    input_stale: bool,
     /// The current sweep's correspondences, for its refinement after the second deskew.
     correspondences: Correspondences,
     /// Correspondences of the open sweep's features picked before its close.
@@ -117,6 +121,7 @@ impl Odometry {
             last: None,
             velocity: Vector6::zeros(),
             input: AlignmentInput::default(),
+            input_stale: false,
             correspondences: Correspondences::default(),
             early: EarlyCorrespondences::default(),
             sweeps: 0,
@@ -133,11 +138,30 @@ impl Odometry {
         (self.edges.len(), self.planes.len(), self.intensity.len())
     }
 
-    /// The last registered sweep's edge, plane and intensity points, deskewed with the motion
-    /// just estimated, in the sensor frame at its reference time: what a keyframe keeps (call
-    /// right after [`Self::locate`] or [`Self::register`]).
-    pub fn deskewed_input(&self) -> &AlignmentInput {
-        &self.input
+    /// What a keyframe keeps of the last registered sweep, `features` (call right after
+    /// [`Self::locate`] or [`Self::register`]): its edge, plane and intensity points deskewed
+    /// with the motion just estimated, in the sensor frame at its reference time, and its
+    /// calibrated returns in that frame (see [`Self::map_points`]).
+    pub fn keyframe_parts<'a>(
+        &'a mut self,
+        features: &'a SweepFeatures,
+    ) -> (
+        &'a AlignmentInput,
+        impl Iterator<Item = (Vector3<f32>, f32)> + 'a,
+    ) {
+        self.settle_input(features);
+        let this = &*self;
+        (
+            &this.input,
+            this.map_points(features, &Isometry3::identity()),
+        )
+    }
+
+    /// Deskews the sweep's features with the motion its alignment measured, if not yet done.
+    fn settle_input(&mut self, features: &SweepFeatures) {
+        if self.input_stale {
+            self.deskew(features, &self.velocity.clone());
+        }
     }
 
     /// The last pose, if any.
@@ -387,7 +411,8 @@ impl Odometry {
 
     /// Deskews again with the motion the alignment measured and, if that moves the sweep's
     /// ends enough, refines the alignment: the prediction's deskew is off by the change in
-    /// velocity over the sweep. Leaves the features deskewed with the final motion.
+    /// velocity over the sweep. The features are deskewed with the final motion when the maps
+    /// grow from them or a keyframe takes them (see `input_stale`).
     fn refine_with_measured_motion(
         &mut self,
         features: &SweepFeatures,
@@ -411,7 +436,7 @@ impl Odometry {
             alignment = self.align(&alignment.pose, Rounds::Refine);
         }
         self.velocity = motion(previous, &alignment.pose, interval);
-        self.deskew(features, &self.velocity.clone());
+        self.input_stale = true;
         alignment
     }
 
@@ -501,6 +526,7 @@ impl Odometry {
     /// Fills the alignment input with the features moved to the reference time, assuming the
     /// body twist `velocity` over the sweep.
     fn deskew(&mut self, features: &SweepFeatures, velocity: &Vector6<f64>) {
+        self.input_stale = false;
         deskew_into(
             &mut self.input,
             features,
@@ -575,6 +601,7 @@ impl Odometry {
             }
         }
         self.mapped_at = Some(*pose);
+        self.settle_input(features);
         for p in &self.input.edges {
             self.edges.insert((pose * Point3::from(*p)).coords.cast());
         }
@@ -739,16 +766,18 @@ fn clamp_twist(v: Vector6<f64>) -> Vector6<f64> {
     Vector6::new(omega.x, omega.y, omega.z, upsilon.x, upsilon.y, upsilon.z)
 }
 
-/// Moves a point fired `dt` before the reference time into the reference frame, for a constant
+/// Moves a point fired `dt` from the reference time into the reference frame, for a constant
 /// body twist: `p_ref = exp(dt·ξ)·p`. The exponential is cached per 0.1 ms of `dt` (a sweep has
 /// at most a few thousand distinct buckets; at 1 rad/s and 2 m/s the bucketing moves a point at
-/// 10 m by under 1 mm), in a [`DeskewCache`] the odometry keeps from call to call.
+/// 10 m by under 1 mm), in a [`DeskewCache`] the odometry keeps from call to call. `dt` is
+/// negative for a sweep deskewed to its last return and positive for one deskewed to its first
+/// (the features associated before the sweep closes): both are cached.
 struct Deskew<'a> {
     twist: Vector6<f64>,
     cache: &'a DeskewCache,
     /// The last bucket looked up and its exponential: a sweep's returns come in firing order,
     /// a few dozen to a bucket, so most need no look-up in the cache.
-    last: std::cell::Cell<Option<(f64, Isometry3<f64>)>>,
+    last: std::cell::Cell<Option<(i64, Isometry3<f64>)>>,
 }
 
 /// The exponentials of one twist per bucket of `dt`, kept between calls so that a deskew
@@ -756,15 +785,29 @@ struct Deskew<'a> {
 #[derive(Debug, Clone, Default)]
 struct DeskewCache(std::cell::RefCell<DeskewTransforms>);
 
-/// A twist, and per bucket its exponential once computed.
+/// A twist, and per bucket its exponential once computed: bucket `b` (`dt ≈ b·0.1 ms`) at
+/// [`DeskewTransforms::slot`], so that the table grows only as far as the sweeps reach on
+/// either side of their reference time.
 #[derive(Debug, Clone, Default)]
 struct DeskewTransforms {
     twist: Vector6<f64>,
     by_bucket: Vec<Option<Isometry3<f64>>>,
 }
 
+impl DeskewTransforms {
+    /// Bucket `b`'s place: 0, −1, 1, −2, 2, … interleaved.
+    fn slot(bucket: i64) -> usize {
+        if bucket >= 0 {
+            2 * bucket as usize
+        } else {
+            2 * (-bucket) as usize - 1
+        }
+    }
+}
+
 const DESKEW_BUCKET_S: f64 = 1e-4;
-const DESKEW_BUCKETS: usize = 4000;
+/// The buckets cached on each side of the reference time: 0.4 s, a sweep at 2.5 Hz.
+const DESKEW_BUCKETS: i64 = 4000;
 
 impl<'a> Deskew<'a> {
     fn new(twist: &Vector6<f64>, cache: &'a DeskewCache) -> Self {
@@ -779,7 +822,7 @@ impl<'a> Deskew<'a> {
         self.apply_at(f.position, f.dt)
     }
 
-    /// The return at `position`, fired `dt` s from the reference time (≤ 0).
+    /// The return at `position`, fired `dt` s from the reference time.
     fn apply_at(&self, position: [f32; 3], dt: f32) -> Vector3<f64> {
         let p = Point3::new(
             f64::from(position[0]),
@@ -789,25 +832,32 @@ impl<'a> Deskew<'a> {
         if self.twist == Vector6::zeros() {
             return p.coords;
         }
-        let bucket = (-f64::from(dt) / DESKEW_BUCKET_S).round();
-        let transform =
-            if let Some((_, transform)) = self.last.get().filter(|&(last, _)| last == bucket) {
-                transform
-            } else if bucket >= 0.0 && (bucket as usize) < DESKEW_BUCKETS {
-                let mut cache = self.cache.0.borrow_mut();
-                // Held for another twist (or never filled): start over for this one.
-                if cache.twist != self.twist || cache.by_bucket.len() != DESKEW_BUCKETS {
-                    cache.twist = self.twist;
-                    cache.by_bucket.clear();
-                    cache.by_bucket.resize(DESKEW_BUCKETS, None);
-                }
-                let transform = *cache.by_bucket[bucket as usize]
-                    .get_or_insert_with(|| exp(&(self.twist * (-bucket * DESKEW_BUCKET_S))));
-                self.last.set(Some((bucket, transform)));
-                transform
-            } else {
-                exp(&(self.twist * f64::from(dt)))
-            };
+        let bucket = (f64::from(dt) / DESKEW_BUCKET_S).round();
+        // False for NaN too, which is then left to `exp`.
+        let cached = bucket.abs() < DESKEW_BUCKETS as f64;
+        let transform = if !cached {
+            exp(&(self.twist * f64::from(dt)))
+        } else if let Some((_, transform)) =
+            self.last.get().filter(|&(last, _)| last == bucket as i64)
+        {
+            transform
+        } else {
+            let bucket = bucket as i64;
+            let mut cache = self.cache.0.borrow_mut();
+            // Held for another twist: start over for this one.
+            if cache.twist != self.twist {
+                cache.twist = self.twist;
+                cache.by_bucket.clear();
+            }
+            let slot = DeskewTransforms::slot(bucket);
+            if cache.by_bucket.len() <= slot {
+                cache.by_bucket.resize(slot + 1, None);
+            }
+            let transform = *cache.by_bucket[slot]
+                .get_or_insert_with(|| exp(&(self.twist * (bucket as f64 * DESKEW_BUCKET_S))));
+            self.last.set(Some((bucket, transform)));
+            transform
+        };
         (transform * p).coords
     }
 }
@@ -857,6 +907,27 @@ mod tests {
             (deskewed - expected.coords).norm() < 1e-5,
             "{deskewed} vs {expected}"
         );
+    }
+
+    #[test]
+    fn deskew_to_the_first_return_matches_the_exponential_both_sides() {
+        // A sweep deskewed to its first return has returns fired after it (dt > 0): they go
+        // through the same cache as those before a last-return reference, within its bucketing.
+        let twist = Vector6::new(0.1, -0.2, 0.8, 1.5, 0.3, 0.0);
+        let cache = DeskewCache::default();
+        let skew = Deskew::new(&twist, &cache);
+        let p = [12.0f32, -7.0, 1.5];
+        for dt in [-0.0993f32, -0.031, 0.0, 0.00026, 0.047, 0.0999] {
+            let exact = exp(&(twist * f64::from(dt))) * Point3::from(Vector3::from(p).cast());
+            let cached = skew.apply_at(p, dt);
+            assert!(
+                (cached - exact.coords).norm() < 1e-3,
+                "dt {dt}: {cached} vs {exact}"
+            );
+        }
+        // Both sides were cached, each in its own slot.
+        let filled = cache.0.borrow().by_bucket.iter().flatten().count();
+        assert_eq!(filled, 6);
     }
 
     #[test]

@@ -564,11 +564,12 @@ impl Tracker {
             });
             return None;
         }
+        let (input, points) = self.odometry.keyframe_parts(features);
         Some(Keyframe::new(
             estimate.time_ns,
             estimate.pose,
-            self.odometry.deskewed_input(),
-            self.odometry.map_points(features, &Isometry3::identity()),
+            input,
+            points,
             config,
         ))
     }
