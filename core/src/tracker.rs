@@ -403,6 +403,20 @@ impl Tracker {
         known_pose: Option<Isometry3<f64>>,
         on_stage: impl FnMut(Stage),
     ) -> TrackedSweep {
+        let mut tracked = self.pose_of(features, known_pose, on_stage);
+        tracked.keyframe = self.keyframe_of(features, &tracked.estimate);
+        tracked
+    }
+
+    /// [`Self::track_pose`] without the keyframe (`keyframe` is None): the sweep's keyframe,
+    /// if it gives one, comes from [`Self::keyframe_of`], which a caller can run once the pose
+    /// is on its way, so that a keyframe sweep's pose waits for no keyframe's making.
+    pub fn pose_of(
+        &mut self,
+        features: &SweepFeatures,
+        known_pose: Option<Isometry3<f64>>,
+        on_stage: impl FnMut(Stage),
+    ) -> TrackedSweep {
         let reference_ns = features.reference_ns;
         let known_pose = known_pose.map(|g| *self.known_origin.get_or_insert(g.inverse()) * g);
         let after_gap = self
@@ -479,19 +493,29 @@ impl Tracker {
             }
             event = event.or(self.watch(&estimate, quality, cost, jump.is_some()));
         }
-        if self.first_keyframe.is_some() {
-            // The first keyframe may be placed in the maps as this sweep leaves them.
-            self.odometry.update_maps(features);
-        }
-        let keyframe = self.keyframe(features, &estimate);
         TrackedSweep {
             estimate,
             quality,
             cost,
-            keyframe,
+            keyframe: None,
             departure,
             event,
         }
+    }
+
+    /// The keyframe the sweep [`Self::pose_of`] just tracked as `estimate` gives, if any
+    /// (see `keyframe`). Must come before [`Self::update_maps`]; a caller that takes no
+    /// keyframes (none configured, or no back end to take them) may skip it.
+    pub fn keyframe_of(
+        &mut self,
+        features: &SweepFeatures,
+        estimate: &OdometryEstimate,
+    ) -> Option<Keyframe> {
+        if self.first_keyframe.is_some() {
+            // The first keyframe may be placed in the maps as this sweep leaves them.
+            self.odometry.update_maps(features);
+        }
+        self.keyframe(features, estimate)
     }
 
     /// The keyframe this sweep gives, if any. The odometry's first sweep (of a run or an epoch)

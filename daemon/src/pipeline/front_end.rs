@@ -50,16 +50,43 @@ pub(super) fn scan_point(p: &Point) -> ScanPoint {
 /// an empty sweep. The reference time is the sweep's last return; the ring count is whatever
 /// the sweep holds (16 for the VLP-16 family, 32 for the HDL-32E).
 pub fn scan_of<'a>(sweep: &Sweep, out: &'a mut Vec<ScanPoint>) -> Option<Scan<'a>> {
-    let reference_ns = sweep.points.last()?.time_ns;
     out.clear();
     out.extend(sweep.points.iter().map(scan_point));
-    let rings = out
+    scan_over(out)
+}
+
+/// [`scan_of`] for the sweep that streamed in as `open`: the returns it converted already are
+/// taken over (`open` gets `out`'s buffer back) and only the rest converted, unless they are
+/// not the start of `sweep` (a gap in the stream).
+fn scan_of_streamed<'a>(
+    sweep: &Sweep,
+    open: &mut OpenSweep,
+    out: &'a mut Vec<ScanPoint>,
+) -> Option<Scan<'a>> {
+    let n = open.points.len();
+    let continues = open.streaming == Some((sweep.index, n))
+        && n > 0
+        && sweep.points.len() >= n
+        && open.points[0] == scan_point(&sweep.points[0])
+        && open.points[n - 1] == scan_point(&sweep.points[n - 1]);
+    if !continues {
+        return scan_of(sweep, out);
+    }
+    std::mem::swap(out, &mut open.points);
+    out.extend(sweep.points[n..].iter().map(scan_point));
+    scan_over(out)
+}
+
+/// `points`, a sweep's returns in firing order, as the odometry's input.
+fn scan_over(points: &[ScanPoint]) -> Option<Scan<'_>> {
+    let reference_ns = points.last()?.time_ns;
+    let rings = points
         .iter()
         .map(|p| usize::from(p.ring) + 1)
         .max()
         .unwrap_or(16);
     Some(Scan {
-        points: out,
+        points,
         rings,
         reference_ns,
     })
@@ -84,7 +111,7 @@ pub(super) fn run_front_end(
     let mut process = |arrival: Arrival, open: &mut OpenSweep, front_end: &mut FrontEnd| {
         let begin = Instant::now();
         let index = arrival.sweep.index;
-        let scan = scan_of(&arrival.sweep, &mut points);
+        let scan = scan_of_streamed(&arrival.sweep, open, &mut points);
         let stamp_offset_ns = arrival.sweep.stamp_offset_ns;
         if let Some(r) = &arrival.recycler {
             r.recycle(arrival.sweep);
@@ -374,6 +401,49 @@ mod tests {
         let mut start = LeadingSweep::default();
         assert!(indices(start.admit(arrival(0, true))).is_empty());
         assert_eq!(start.finish().map(|a| a.sweep.index), Some(0));
+    }
+
+    #[test]
+    fn a_streamed_sweep_is_converted_only_past_what_streamed_in() {
+        let sweep = Sweep {
+            index: 3,
+            points: (0..64)
+                .map(|i| Point {
+                    time_ns: 1_000 + i as u64 * 100,
+                    x: 4.0,
+                    y: i as f32 * 0.02,
+                    z: 0.5,
+                    reflectivity: 40,
+                    ring: (i % 16) as u8,
+                    ..Point::default()
+                })
+                .collect(),
+            ..Sweep::default()
+        };
+        let mut whole = Vec::new();
+        let expected = scan_of(&sweep, &mut whole).unwrap();
+        let streamed = |index: u64, n: usize| OpenSweep {
+            streaming: Some((index, n)),
+            points: sweep.points[..n].iter().map(scan_point).collect(),
+            ..OpenSweep::default()
+        };
+        // The first 40 streamed in: taken over, the other 24 converted.
+        let mut open = streamed(3, 40);
+        let mut out = Vec::new();
+        let scan = scan_of_streamed(&sweep, &mut open, &mut out).unwrap();
+        assert_eq!(scan.points, expected.points);
+        assert_eq!((scan.rings, scan.reference_ns), (16, 1_000 + 63 * 100));
+        assert!(open.points.is_empty(), "the buffers were swapped");
+        // Another sweep's returns, or ones that are not this sweep's start: converted whole.
+        for mut open in [streamed(2, 40), {
+            let mut o = streamed(3, 40);
+            o.points[39].position[0] += 1.0;
+            o
+        }] {
+            let mut out = Vec::new();
+            let scan = scan_of_streamed(&sweep, &mut open, &mut out).unwrap();
+            assert_eq!(scan.points, expected.points);
+        }
     }
 
     #[test]

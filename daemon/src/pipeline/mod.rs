@@ -436,6 +436,9 @@ pub fn run(mut options: Options) -> Result<Summary> {
         }
     };
     // The `sweep` service, on a thread of its own; one sweep may wait for it.
+    // Live, the threads off the pose's path yield to it (see `placement`); a replay's stages
+    // wait on each other, and would only run slower.
+    let live = matches!(options.input, Input::Live { .. });
     let sweep_service = match &options.publish {
         Some(p) if p.sweeps => {
             let domain = glint_ipc::Domain::new(&p.domain)
@@ -443,6 +446,9 @@ pub fn run(mut options: Options) -> Result<Summary> {
             let (tx, rx) = bounded::<PublishedSweep>(1);
             let base_from_sensor = options.base_from_sensor;
             let handle = spawn("glint-sweeps", move || {
+                if live {
+                    placement::run_in_background("glint-sweeps");
+                }
                 run_sweep_publisher(&domain, base_from_sensor, &rx);
                 Ok(())
             })?;
@@ -499,6 +505,9 @@ pub fn run(mut options: Options) -> Result<Summary> {
             };
             let (tx, rx) = bounded::<MapEvent>(MAP_EVENT_QUEUE);
             let handle = spawn("glint-map", move || {
+                if live {
+                    placement::run_in_background("glint-map");
+                }
                 run_map_publisher(&domain, held, &rx);
                 Ok(())
             })?;
@@ -540,6 +549,9 @@ pub fn run(mut options: Options) -> Result<Summary> {
                 };
                 let heartbeats = heartbeats.clone();
                 let handle = spawn("glint-localiser", move || {
+                    if live {
+                        placement::run_in_background("glint-localiser");
+                    }
                     Ok(run_localiser(
                         localiser,
                         hints,
@@ -560,6 +572,9 @@ pub fn run(mut options: Options) -> Result<Summary> {
                     .as_ref()
                     .map(|(tx, _)| MapOutlet::new(tx.clone(), options.base_from_sensor));
                 let handle = spawn("glint-backend", move || {
+                    if live {
+                        placement::run_in_background("glint-backend");
+                    }
                     Ok(run_backend(
                         &config,
                         saver.as_ref(),

@@ -111,7 +111,7 @@ pub(super) fn run_odometry(
         let known_pose = known
             .as_deref()
             .and_then(|gt| interpolate(gt, features.reference_ns));
-        let tracked = tracker.track_pose(features, known_pose, hook);
+        let tracked = tracker.pose_of(features, known_pose, hook);
         match tracked.event {
             Some(TrackerEvent::Resumed { quality, cost }) => {
                 tracing::info!(quality, cost, "tracking resumed after a gap in the data");
@@ -136,14 +136,19 @@ pub(super) fn run_odometry(
             "sweep registered"
         );
         let previous_correction = tracker.correction();
+        // Live, a keyframe is made and handed over once the pose is on its way (below); in
+        // lockstep before, as the answer it brings back applies from this sweep.
+        let keyframe_after = back_end
+            .as_ref()
+            .is_some_and(|link| link.lockstep == Lockstep::Off)
+            .then_some(estimate.clone());
         if let Some(link) = back_end.as_mut() {
-            if let Some(keyframe) = tracked.keyframe {
-                if let Some(c) = link.offer(tracker.epoch(), keyframe, heartbeats) {
-                    tracker.apply(&c);
-                }
-            }
             if link.lockstep == Lockstep::Off {
                 for c in link.arrived() {
+                    tracker.apply(&c);
+                }
+            } else if let Some(keyframe) = tracker.keyframe_of(features, &estimate) {
+                if let Some(c) = link.offer(tracker.epoch(), keyframe, heartbeats) {
                     tracker.apply(&c);
                 }
             }
@@ -177,6 +182,11 @@ pub(super) fn run_odometry(
             break;
         }
         // The pose is on its way; what only the next sweep needs follows.
+        if let (Some(link), Some(estimate)) = (back_end.as_mut(), keyframe_after) {
+            if let Some(keyframe) = tracker.keyframe_of(features, &estimate) {
+                link.offer(tracker.epoch(), keyframe, heartbeats);
+            }
+        }
         let grown = Instant::now();
         tracker.update_maps(features);
         map_update_ms = grown.elapsed().as_secs_f64() * 1e3;
