@@ -435,10 +435,10 @@ pub fn run(mut options: Options) -> Result<Summary> {
             }
         }
     };
-    // The `sweep` service, on a thread of its own; one sweep may wait for it.
     // Live, the threads off the pose's path yield to it (see `placement`); a replay's stages
     // wait on each other, and would only run slower.
     let live = matches!(options.input, Input::Live { .. });
+    // The `sweep` service, on a thread of its own; one sweep may wait for it.
     let sweep_service = match &options.publish {
         Some(p) if p.sweeps => {
             let domain = glint_ipc::Domain::new(&p.domain)
