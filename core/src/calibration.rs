@@ -84,15 +84,15 @@ fn span(
 }
 
 /// atan2(y, x) within 2e-5 rad (a millidegree, against the image's 0.2° columns) in a few dozen
-/// instructions: libm's `atan2f` took ~130 a call, an eighth of the calibration's.
+/// instructions: libm's `atan2f` took ~130 a call, an eighth of the calibration's. Without
+/// branches (selects only), so a loop of them vectorises; 0 at the origin.
+#[inline(always)]
 fn atan2(y: f32, x: f32) -> f32 {
     use std::f32::consts::{FRAC_PI_2, PI};
     let (ax, ay) = (x.abs(), y.abs());
-    if ax == 0.0 && ay == 0.0 {
-        return 0.0;
-    }
     // atan of the ratio in [0, 1], by a minimax polynomial in its square.
-    let t = ax.min(ay) / ax.max(ay);
+    let (low, high) = (ax.min(ay), ax.max(ay));
+    let t = if high > 0.0 { low / high } else { 0.0 };
     let t2 = t * t;
     let poly = -0.011_721_2_f32;
     let poly = poly * t2 + 0.052_653_32;
@@ -268,22 +268,31 @@ impl RangeImage {
         self.azimuth.resize(n, 0.0);
         self.normal.resize(n, [0.0; 3]);
 
-        for (i, p) in (first..).zip(points) {
+        // Ranges and azimuths first, in a loop of arithmetic alone that the compiler vectorises.
+        let polar = self.range[first..]
+            .iter_mut()
+            .zip(&mut self.azimuth[first..]);
+        for ((range, azimuth), p) in polar.zip(points) {
             let [x, y, z] = p.position;
-            let range = (x * x + y * y + z * z).sqrt();
+            *range = (x * x + y * y + z * z).sqrt();
+            // Clockwise from +x, as the sensor counts azimuth.
+            let a = atan2(-y, x);
+            *azimuth = if a < 0.0 {
+                a + std::f32::consts::TAU
+            } else {
+                a
+            };
+        }
+        for (i, p) in (first..).zip(points) {
+            let (range, azimuth) = (self.range[i], self.azimuth[i]);
             let ring = usize::from(p.ring);
             if !range.is_finite() || range <= 0.0 || ring >= self.rings {
+                // Out of the image: as if never measured.
+                (self.range[i], self.azimuth[i]) = (0.0, 0.0);
                 continue;
             }
-            // Clockwise from +x, as the sensor counts azimuth.
-            let azimuth = match atan2(-y, x) {
-                a if a < 0.0 => a + std::f32::consts::TAU,
-                a => a,
-            };
             // Through i32: converting a float to usize takes a longer instruction sequence.
             let column = ((azimuth * COLUMNS_PER_RAD) as i32).clamp(0, COLUMNS as i32 - 1) as usize;
-            self.range[i] = range;
-            self.azimuth[i] = azimuth;
             self.column[i] = column as u16;
             self.ring[i] = p.ring;
             self.raw[i] = p.reflectivity;
@@ -291,7 +300,7 @@ impl RangeImage {
             self.valid[i] = p.reflectivity >= config.min_reflectivity;
             self.ring_index[i] = self.ring_points[ring].len() as u32;
             self.ring_points[ring].push(i as u32);
-            self.ring_positions[ring].push(Vector3::new(x, y, z));
+            self.ring_positions[ring].push(Vector3::from(p.position));
             let cell = ring * COLUMNS + column;
             let readers = self.read[cell].get();
             if readers != 0 {
@@ -353,6 +362,12 @@ impl RangeImage {
             for i in 0..self.range.len() {
                 let k = self.ring_index[i];
                 if k != EMPTY {
+                    self.estimate_normal(i, usize::from(self.ring[i]), k as usize, config);
+                }
+            }
+            for i in 0..self.range.len() {
+                let k = self.ring_index[i];
+                if k != EMPTY {
                     self.calibrate_return(i, usize::from(self.ring[i]), k as usize, config);
                 }
             }
@@ -369,18 +384,22 @@ impl RangeImage {
             };
             for k in self.done[ring]..end {
                 let i = self.ring_points[ring][k] as usize;
+                self.estimate_normal(i, ring, k, config);
+            }
+            for k in self.done[ring]..end {
+                let i = self.ring_points[ring][k] as usize;
                 self.calibrate_return(i, ring, k, config);
             }
             self.done[ring] = self.done[ring].max(end);
         }
     }
 
-    /// Calibrates return `i`, the `k`-th of ring `ring`, the ring's earlier ones done.
+    /// The surface normal of return `i`, the `k`-th of ring `ring`, the ring's earlier ones
+    /// done (a retro-reflector needs none). Apart from [`Self::calibrate_return`], so that the
+    /// latter's divisions, which no later return waits on, overlap from one return to the next.
     #[inline(always)]
-    fn calibrate_return(&mut self, i: usize, ring: usize, k: usize, config: &CalibrationConfig) {
-        let raw = f32::from(self.raw[i]);
+    fn estimate_normal(&mut self, i: usize, ring: usize, k: usize, config: &CalibrationConfig) {
         if self.retro[i] {
-            self.eta[i] = raw;
             return;
         }
         let reuse_sq = config.normal_spacing * config.normal_spacing;
@@ -394,6 +413,19 @@ impl RangeImage {
             }
         };
         self.normal[i] = normal.map_or([0.0; 3], |unit| [unit.x, unit.y, unit.z]);
+    }
+
+    /// Calibrates return `i`, the `k`-th of ring `ring`, whose normal is estimated.
+    #[inline(always)]
+    fn calibrate_return(&mut self, i: usize, ring: usize, k: usize, config: &CalibrationConfig) {
+        let raw = f32::from(self.raw[i]);
+        if self.retro[i] {
+            self.eta[i] = raw;
+            return;
+        }
+        let position = self.ring_positions[ring][k];
+        // A unit normal is never zero: zero is none.
+        let normal = Some(Vector3::from(self.normal[i])).filter(|unit| *unit != Vector3::zeros());
         let cos = normal.map(|unit| (position.dot(&unit) / self.range[i]).abs());
         self.eta[i] = match cos {
             Some(c) if c >= config.min_reliable_cos => {

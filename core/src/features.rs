@@ -158,6 +158,9 @@ struct RingRoughness {
     unreliable: Vec<bool>,
     /// (σᴳ, σᴵ, place) of each usable place measured, in ring order.
     roughness: Vec<(f32, f32, u32)>,
+    /// Per entry of `roughness`: the noise floor of σᴳ at its range ([`noise_floor`]; it falls
+    /// as 1/r).
+    noise: Vec<f32>,
     /// Σ positions over the window of the place last measured.
     window: Vector3<f64>,
     /// The next place to measure.
@@ -214,27 +217,19 @@ fn feature(scan: &Scan<'_>, image: &RangeImage, i: usize) -> Feature {
 struct Thresholds {
     edge: f32,
     plane: f32,
-    /// The noise floor of σᴳ at 1 m; it falls as 1/r.
-    noise_at_1m: f32,
     /// 1 / the plane voxel's size, 1/m.
     per_voxel: f32,
 }
 
 impl Thresholds {
     /// The thresholds for a sweep of azimuth step `step` (rad; the reference step if unknown).
-    fn new(config: &FeatureConfig, step: Option<f32>, k: usize) -> Self {
+    fn new(config: &FeatureConfig, step: Option<f32>) -> Self {
         let step_ratio = step.map_or(1.0, |step| step / REFERENCE_STEP_RAD);
         Self {
             edge: config.edge_threshold * step_ratio.clamp(0.5, 4.0),
             plane: config.plane_threshold * step_ratio.clamp(0.5, 4.0),
-            noise_at_1m: noise_floor(config, k, 1.0),
             per_voxel: 1.0 / config.plane_voxel,
         }
-    }
-
-    /// The noise floor of σᴳ at range `r`.
-    fn noise(&self, r: f32) -> f32 {
-        self.noise_at_1m / r.max(0.1)
     }
 }
 
@@ -245,6 +240,7 @@ impl RingRoughness {
         self.eta.clear();
         self.unreliable.clear();
         self.roughness.clear();
+        self.noise.clear();
         self.window = Vector3::zeros();
         self.next = 0;
         self.last_kept = [f32::INFINITY; 3];
@@ -293,7 +289,7 @@ impl RingRoughness {
             }
             self.flag_unreliable(positions, w, k);
         }
-        self.measure_roughness(positions, k);
+        self.measure_roughness(positions, k, noise_floor(config, k, 1.0));
     }
 
     /// LOAM's rejection rules as place `w` arrives: a depth jump from the place before makes
@@ -304,8 +300,9 @@ impl RingRoughness {
             return;
         }
         let (ra, rb) = (self.range[w - 1], self.range[w]);
-        let gap = (positions[w - 1] - positions[w]).norm();
-        if gap > 0.1 * ra.min(rb) + 0.1 {
+        // Squared, as the span below: a square root per return was the ring pass's largest cost.
+        let gap_sq = (positions[w - 1] - positions[w]).norm_squared();
+        if gap_sq > (0.1 * ra.min(rb) + 0.1).powi(2) {
             if ra > rb {
                 for flag in &mut self.unreliable[w.saturating_sub(k)..w] {
                     *flag = true;
@@ -328,8 +325,9 @@ impl RingRoughness {
     }
 
     /// Each usable place's (σᴳ, σᴵ, place) over a contiguous window of `k` neighbours, for the
-    /// places whose window is loaded.
-    fn measure_roughness(&mut self, positions: &[Vector3<f32>], k: usize) {
+    /// places whose window is loaded, and its noise floor (`noise_at_1m` at 1 m).
+    fn measure_roughness(&mut self, positions: &[Vector3<f32>], k: usize, noise_at_1m: f32) {
+        let first = self.roughness.len();
         // Σ positions over the window [w − k, w + k], slid along the ring: in f64, so the
         // additions and removals along a ring of 1800 returns leave no drift at f32's scale.
         let wide = |v: &Vector3<f32>| v.cast::<f64>();
@@ -350,8 +348,8 @@ impl RingRoughness {
             let range = self.range[w];
             let p = positions[w];
             // The window must be contiguous: no gap wider than a few steps.
-            let span = (positions[w - k] - positions[w + k]).norm();
-            if span > (2 * k) as f32 * 0.02 * range + 0.5 {
+            let span_sq = (positions[w - k] - positions[w + k]).norm_squared();
+            if span_sq > ((2 * k) as f32 * 0.02 * range + 0.5).powi(2) {
                 continue;
             }
             // Σⱼ(pⱼ − pᵢ) over the 2k neighbours.
@@ -368,13 +366,22 @@ impl RingRoughness {
                 }
                 eta_count -= 1.0;
             }
-            let geometric = sum.norm() / ((2 * k) as f32 * range);
             let intensity = if eta_count > 0.0 {
                 eta_diff / (eta_count * 100.0)
             } else {
                 0.0
             };
-            self.roughness.push((geometric, intensity, w as u32));
+            // |Σ|² for now: σᴳ below.
+            self.roughness
+                .push((sum.norm_squared(), intensity, w as u32));
+        }
+        // The square roots and divisions in a pass of their own: inside the loop above, each
+        // waited on the one before; here they overlap.
+        let scale = (2 * k) as f32;
+        for entry in &mut self.roughness[first..] {
+            let range = self.range[entry.2 as usize];
+            entry.0 = entry.0.sqrt() / (scale * range);
+            self.noise.push(noise_at_1m / range.max(0.1));
         }
     }
 }
@@ -415,7 +422,7 @@ impl FeatureSelector {
             return;
         };
         let sectors = config.sectors.max(1);
-        let limits = Thresholds::new(config, plan.step, k);
+        let limits = Thresholds::new(config, plan.step);
         while self.picked + 1 < sectors {
             let sector = self.picked;
             let measured = self.rings.iter().enumerate().all(|(r, ring)| {
@@ -491,7 +498,7 @@ impl FeatureSelector {
             }
             self.picked = 0;
         }
-        let limits = Thresholds::new(config, plan.step, k);
+        let limits = Thresholds::new(config, plan.step);
         for sector in self.picked..sectors {
             self.pick_sector(image, config, (&plan, &limits), sector);
         }
@@ -641,16 +648,17 @@ impl Picks {
         k: usize,
     ) {
         let combined = |g: f32, i: f32| config.geometric_weight * g + config.intensity_weight * i;
-        let (ring_range, unreliable) = (&ring.range, &ring.unreliable);
+        let unreliable = &ring.unreliable;
         self.edge_candidates.clear();
         self.edge_candidates.extend(
-            ring.roughness[sector]
+            ring.roughness[sector.clone()]
                 .iter()
-                .map(|&(g, i, w)| (combined(g, i), w))
-                .filter(|&(sigma, w)| {
-                    let w = w as usize;
-                    sigma > limits.edge + 3.0 * limits.noise(ring_range[w]) && !unreliable[w]
-                }),
+                .zip(&ring.noise[sector])
+                .map(|(&(g, i, w), &noise)| (combined(g, i), w, noise))
+                .filter(|&(sigma, w, noise)| {
+                    sigma > limits.edge + 3.0 * noise && !unreliable[w as usize]
+                })
+                .map(|(sigma, w, _)| (sigma, w)),
         );
         self.edge_candidates
             .sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
@@ -684,12 +692,15 @@ impl Picks {
         (ring, members, positions): (&RingRoughness, &[u32], &[Vector3<f32>]),
         sector: Range<usize>,
     ) {
-        for &(g, rough_i, w) in &ring.roughness[sector] {
+        let entries = ring.roughness[sector.clone()]
+            .iter()
+            .zip(&ring.noise[sector]);
+        for (&(g, rough_i, w), &noise) in entries {
             let (w, i) = (w as usize, members[w as usize]);
             if ring.unreliable[w] {
                 continue;
             }
-            if g < limits.plane + limits.noise(ring.range[w]) && !ring.suppressed[w] {
+            if g < limits.plane + noise && !ring.suppressed[w] {
                 let p = positions[w];
                 let key = (
                     (p.x * limits.per_voxel).floor() as i32,

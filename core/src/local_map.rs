@@ -4,10 +4,11 @@
 //! on an endless run. Nearest neighbours come from the 27 cells around the query, which bounds
 //! the search radius by one cell.
 //!
-//! The cells' points live in flat arrays, `points_per_cell` slots a cell, one array per
-//! coordinate, so a search reads contiguous memory instead of chasing a heap allocation per cell
-//! and a cell's distances are computed side by side (vectorised) before any is ranked; the hash
-//! only maps a cell's key to its slot. A search skips every one of the 27 cells whose box is
+//! The cells' points live in one flat array, a block of `points_per_cell` places a cell, each
+//! block its x's, then its y's, then its z's, so a search reads one contiguous block per cell
+//! instead of chasing a heap allocation per cell (or three arrays far apart), and a cell's
+//! distances are computed side by side (vectorised) before any is ranked; the hash only maps a
+//! cell's key to its slot. A search skips every one of the 27 cells whose box is
 //! farther than the current k-th neighbour: the answer is the exact k nearest, and a query in the
 //! middle of a surface reads two or three cells instead of nine.
 
@@ -27,12 +28,13 @@ pub struct LocalMap {
     cell: f32,
     per_cell: usize,
     min_spacing_sq: f32,
-    /// Cell key → slot.
-    index: FxHashMap<[i32; 3], u32>,
+    /// Cell key → slot and how many of its places are used (as in `slots`, so that a search
+    /// learns both from the lookup it makes anyway).
+    index: FxHashMap<[i32; 3], (u32, u32)>,
     /// Per slot: its cell's key and how many of its `per_cell` points are used.
     slots: Vec<([i32; 3], u32)>,
-    /// `per_cell` points per slot: x, y and z each in its own array.
-    storage: [Vec<f32>; 3],
+    /// A block of `3 × per_cell` values per slot: its points' x's, then y's, then z's.
+    storage: Vec<f32>,
     points: usize,
 }
 
@@ -45,7 +47,7 @@ impl LocalMap {
             min_spacing_sq: config.min_spacing * config.min_spacing,
             index: FxHashMap::default(),
             slots: Vec::new(),
-            storage: [Vec::new(), Vec::new(), Vec::new()],
+            storage: Vec::new(),
             points: 0,
         }
     }
@@ -68,11 +70,24 @@ impl LocalMap {
         ]
     }
 
+    /// Where the x's of slot `slot`'s block start in `storage` (its y's `per_cell` later, its
+    /// z's `2 × per_cell`).
+    fn block(&self, slot: usize) -> usize {
+        slot * 3 * self.per_cell
+    }
+
     /// The coordinates (x, y, z) of the points of slot `slot`.
     fn slot_coordinates(&self, slot: usize) -> [&[f32]; 3] {
-        let start = slot * self.per_cell;
-        let end = start + self.slots[slot].1 as usize;
-        self.storage.each_ref().map(|axis| &axis[start..end])
+        self.block_coordinates(slot, self.slots[slot].1 as usize)
+    }
+
+    /// The coordinates (x, y, z) of the first `used` points of slot `slot`.
+    fn block_coordinates(&self, slot: usize, used: usize) -> [&[f32]; 3] {
+        let start = self.block(slot);
+        [0, 1, 2].map(|axis| {
+            let from = start + axis * self.per_cell;
+            &self.storage[from..from + used]
+        })
     }
 
     /// The points of slot `slot`.
@@ -88,14 +103,13 @@ impl LocalMap {
         }
         let key = self.key(&p);
         let slot = match self.index.get(&key) {
-            Some(&slot) => slot as usize,
+            Some(&(slot, _)) => slot as usize,
             None => {
                 let slot = self.slots.len();
-                self.index.insert(key, slot as u32);
+                self.index.insert(key, (slot as u32, 0));
                 self.slots.push((key, 0));
-                for axis in &mut self.storage {
-                    axis.resize(axis.len() + self.per_cell, 0.0);
-                }
+                self.storage
+                    .resize(self.storage.len() + 3 * self.per_cell, 0.0);
                 slot
             }
         };
@@ -107,10 +121,14 @@ impl LocalMap {
         {
             return;
         }
-        for (axis, v) in self.storage.iter_mut().zip(p.iter()) {
-            axis[slot * self.per_cell + used] = *v;
+        let start = self.block(slot) + used;
+        for (axis, v) in p.iter().enumerate() {
+            self.storage[start + axis * self.per_cell] = *v;
         }
         self.slots[slot].1 += 1;
+        if let Some(entry) = self.index.get_mut(&key) {
+            entry.1 += 1;
+        }
         self.points += 1;
     }
 
@@ -127,7 +145,7 @@ impl LocalMap {
         let k = k.clamp(1, MAX_NEIGHBOURS);
         let max_sq = max_distance * max_distance;
         // The nearest so far, sorted: distances² (infinity past `found`, so the k-th is a bound
-        // from the start) and each one's place in `storage`, read only for the answer.
+        // from the start) and the place of each one's x in `storage`, read only for the answer.
         let mut best_sq = [f32::INFINITY; MAX_NEIGHBOURS];
         let mut best_at = [0u32; MAX_NEIGHBOURS];
         let mut found = 0;
@@ -154,14 +172,15 @@ impl LocalMap {
                     if box_sq > max_sq || box_sq >= best_sq[k - 1] {
                         continue;
                     }
-                    let Some(&slot) = self.index.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
+                    let Some(&(slot, used)) = self.index.get(&[c[0] + dx, c[1] + dy, c[2] + dz])
+                    else {
                         continue;
                     };
                     let slot = slot as usize;
-                    let [xs, ys, zs] = self.slot_coordinates(slot);
+                    let [xs, ys, zs] = self.block_coordinates(slot, used as usize);
                     let chunks = xs.chunks(CHUNK).zip(ys.chunks(CHUNK)).zip(zs.chunks(CHUNK));
                     for (chunk, ((xs, ys), zs)) in chunks.enumerate() {
-                        let first = slot * self.per_cell + chunk * CHUNK;
+                        let first = self.block(slot) + chunk * CHUNK;
                         // Distances first, in a loop the compiler vectorises; ranking after.
                         let mut d = [0.0f32; CHUNK];
                         let d = &mut d[..xs.len()];
@@ -188,10 +207,10 @@ impl LocalMap {
                 }
             }
         }
-        let [xs, ys, zs] = &self.storage;
+        let (storage, per) = (&self.storage, self.per_cell);
         out.extend(best_at[..found].iter().map(|&i| {
             let i = i as usize;
-            Vector3::new(xs[i], ys[i], zs[i])
+            Vector3::new(storage[i], storage[i + per], storage[i + 2 * per])
         }));
     }
 
@@ -213,17 +232,14 @@ impl LocalMap {
             }
             if kept != slot {
                 self.slots[kept] = (k, used);
-                for axis in &mut self.storage {
-                    axis.copy_within(slot * per..(slot + 1) * per, kept * per);
-                }
-                self.index.insert(k, kept as u32);
+                self.storage
+                    .copy_within(slot * 3 * per..(slot + 1) * 3 * per, kept * 3 * per);
+                self.index.insert(k, (kept as u32, used));
             }
             kept += 1;
         }
         self.slots.truncate(kept);
-        for axis in &mut self.storage {
-            axis.truncate(kept * per);
-        }
+        self.storage.truncate(kept * 3 * per);
     }
 }
 
