@@ -505,8 +505,9 @@ impl OdometryConfig {
         check(
             "local_map.radius",
             l.radius,
-            l.radius.is_finite() && l.radius > l.cell,
-            "must be finite and > local_map.cell",
+            // The map's hash tells cells apart modulo 2²¹ of them (`local_map::packed`).
+            l.radius.is_finite() && l.radius > l.cell && l.radius < l.cell * (1 << 20) as f32,
+            "must be finite, > local_map.cell and < 2^20 cells",
         )?;
         check(
             "local_map.min_plane_weight",
@@ -634,6 +635,9 @@ mod tests {
     fn an_impossible_value_names_its_key() {
         let mut c = OdometryConfig::default();
         c.local_map.radius = 0.5;
+        let e = c.validate().unwrap_err();
+        assert_eq!(e.key, "local_map.radius");
+        c.local_map.radius = 2.0e6;
         let e = c.validate().unwrap_err();
         assert_eq!(e.key, "local_map.radius");
         c = OdometryConfig::default();
