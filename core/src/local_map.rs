@@ -31,6 +31,11 @@ fn packed(key: [i32; 3]) -> u64 {
     (x << 42) | (y << 21) | z
 }
 
+/// Where the x's of slot `slot`'s block start in the storage, at `per_cell` places a cell.
+fn block_start(slot: usize, per_cell: usize) -> usize {
+    slot * 3 * per_cell
+}
+
 /// Points around the robot. See the module docs.
 #[derive(Debug, Clone)]
 pub struct LocalMap {
@@ -82,12 +87,7 @@ impl LocalMap {
     /// Where the x's of slot `slot`'s block start in `storage` (its y's `per_cell` later, its
     /// z's `2 × per_cell`).
     fn block(&self, slot: usize) -> usize {
-        slot * 3 * self.per_cell
-    }
-
-    /// The coordinates (x, y, z) of the points of slot `slot`.
-    fn slot_coordinates(&self, slot: usize) -> [&[f32]; 3] {
-        self.block_coordinates(slot, self.slots[slot].1 as usize)
+        block_start(slot, self.per_cell)
     }
 
     /// The coordinates (x, y, z) of the first `used` points of slot `slot`.
@@ -100,8 +100,9 @@ impl LocalMap {
     }
 
     /// The points of slot `slot`.
+    #[cfg(test)]
     fn slot_points(&self, slot: usize) -> impl Iterator<Item = Vector3<f32>> + '_ {
-        let [x, y, z] = self.slot_coordinates(slot);
+        let [x, y, z] = self.block_coordinates(slot, self.slots[slot].1 as usize);
         (0..x.len()).map(move |j| Vector3::new(x[j], y[j], z[j]))
     }
 
@@ -111,34 +112,39 @@ impl LocalMap {
             return;
         }
         let key = self.key(&p);
-        let slot = match self.index.get(&packed(key)) {
-            Some(&(slot, _)) => slot as usize,
-            None => {
-                let slot = self.slots.len();
-                self.index.insert(packed(key), (slot as u32, 0));
-                self.slots.push((key, 0));
-                self.storage
-                    .resize(self.storage.len() + 3 * self.per_cell, 0.0);
-                slot
-            }
-        };
-        let used = self.slots[slot].1 as usize;
-        if used >= self.per_cell
-            || self
-                .slot_points(slot)
-                .any(|q| (q - p).norm_squared() < self.min_spacing_sq)
+        let per_cell = self.per_cell;
+        // Field by field, so that the cell is looked up once and its entry stays borrowed while
+        // the block is read and written.
+        let Self {
+            index,
+            slots,
+            storage,
+            min_spacing_sq,
+            points,
+            ..
+        } = self;
+        let entry = index.entry(packed(key)).or_insert_with(|| {
+            let slot = slots.len();
+            slots.push((key, 0));
+            storage.resize(storage.len() + 3 * per_cell, 0.0);
+            (slot as u32, 0)
+        });
+        let (slot, used) = (entry.0 as usize, entry.1 as usize);
+        if used >= per_cell {
+            return;
+        }
+        let start = block_start(slot, per_cell);
+        let [x, y, z] = [0, 1, 2].map(|axis| &storage[start + axis * per_cell..][..used]);
+        if (0..used).any(|j| (Vector3::new(x[j], y[j], z[j]) - p).norm_squared() < *min_spacing_sq)
         {
             return;
         }
-        let start = self.block(slot) + used;
         for (axis, v) in p.iter().enumerate() {
-            self.storage[start + axis * self.per_cell] = *v;
+            storage[start + axis * per_cell + used] = *v;
         }
-        self.slots[slot].1 += 1;
-        if let Some(entry) = self.index.get_mut(&packed(key)) {
-            entry.1 += 1;
-        }
-        self.points += 1;
+        entry.1 += 1;
+        slots[slot].1 += 1;
+        *points += 1;
     }
 
     /// The `k` (at most [`MAX_NEIGHBOURS`]) nearest points to `p` within `max_distance`,
