@@ -31,9 +31,19 @@ fn packed(key: [i32; 3]) -> u64 {
     (x << 42) | (y << 21) | z
 }
 
-/// Where the x's of slot `slot`'s block start in the storage, at `per_cell` places a cell.
+/// Where the x's of slot `slot`'s block start in the storage, at `per_cell` places a cell (its
+/// y's `per_cell` later, its z's `2 × per_cell`).
 fn block_start(slot: usize, per_cell: usize) -> usize {
     slot * 3 * per_cell
+}
+
+/// The coordinates (x, y, z) of the first `used` points of slot `slot`'s block in `storage`.
+fn block_coordinates(storage: &[f32], slot: usize, per_cell: usize, used: usize) -> [&[f32]; 3] {
+    let start = block_start(slot, per_cell);
+    [0, 1, 2].map(|axis| {
+        let from = start + axis * per_cell;
+        &storage[from..from + used]
+    })
 }
 
 /// Points around the robot. See the module docs.
@@ -84,19 +94,14 @@ impl LocalMap {
         ]
     }
 
-    /// Where the x's of slot `slot`'s block start in `storage` (its y's `per_cell` later, its
-    /// z's `2 × per_cell`).
+    /// Where the x's of slot `slot`'s block start in `storage`.
     fn block(&self, slot: usize) -> usize {
         block_start(slot, self.per_cell)
     }
 
     /// The coordinates (x, y, z) of the first `used` points of slot `slot`.
     fn block_coordinates(&self, slot: usize, used: usize) -> [&[f32]; 3] {
-        let start = self.block(slot);
-        [0, 1, 2].map(|axis| {
-            let from = start + axis * self.per_cell;
-            &self.storage[from..from + used]
-        })
+        block_coordinates(&self.storage, slot, self.per_cell, used)
     }
 
     /// The points of slot `slot`.
@@ -133,12 +138,12 @@ impl LocalMap {
         if used >= per_cell {
             return;
         }
-        let start = block_start(slot, per_cell);
-        let [x, y, z] = [0, 1, 2].map(|axis| &storage[start + axis * per_cell..][..used]);
+        let [x, y, z] = block_coordinates(storage, slot, per_cell, used);
         if (0..used).any(|j| (Vector3::new(x[j], y[j], z[j]) - p).norm_squared() < *min_spacing_sq)
         {
             return;
         }
+        let start = block_start(slot, per_cell);
         for (axis, v) in p.iter().enumerate() {
             storage[start + axis * per_cell + used] = *v;
         }
