@@ -117,6 +117,7 @@ fn atan2(y: f32, x: f32) -> f32 {
 /// Columns of the range image: 0.2°, the VLP-16's horizontal step at 600 rpm.
 pub const COLUMNS: usize = 1800;
 const COLUMNS_PER_RAD: f32 = COLUMNS as f32 / std::f32::consts::TAU;
+const COLUMNS_PER_DEGREE: usize = COLUMNS / 360;
 const EMPTY: u32 = u32::MAX;
 /// The farthest a normal looks along its ring, in returns: a return is calibrated as it
 /// streams in once this many more of its ring have arrived.
@@ -192,6 +193,8 @@ pub struct RangeImage {
     recalibrated: usize,
     /// The sweep's azimuth step, see [`Self::azimuth_step`].
     step: Option<f32>,
+    /// The degrees of azimuth holding a return, as bits: see [`Self::coverage`].
+    degrees_seen: Vec<u64>,
 }
 
 impl RangeImage {
@@ -235,6 +238,8 @@ impl RangeImage {
         self.stale.resize(self.rings, false);
         self.recalibrated = 0;
         self.step = None;
+        self.degrees_seen.clear();
+        self.degrees_seen.resize(360usize.div_ceil(64), 0);
     }
 
     /// The rings of the sweep begun.
@@ -294,6 +299,8 @@ impl RangeImage {
             // Through i32: converting a float to usize takes a longer instruction sequence.
             let column = ((azimuth * COLUMNS_PER_RAD) as i32).clamp(0, COLUMNS as i32 - 1) as usize;
             self.column[i] = column as u16;
+            let degree = column / COLUMNS_PER_DEGREE;
+            self.degrees_seen[degree / 64] |= 1 << (degree % 64);
             self.ring[i] = p.ring;
             self.raw[i] = p.reflectivity;
             self.retro[i] = p.reflectivity > 100;
@@ -443,6 +450,16 @@ impl RangeImage {
         } else {
             f32::NAN
         }
+    }
+
+    /// The share of a turn's 360 degrees of azimuth holding at least one of the returns taken
+    /// in: 1 for a whole sweep, less for one the stream cut short (the sensor fell silent, the
+    /// capture ended) or a mounting that blocks part of the view. Whole degrees, not columns:
+    /// a degree holds returns at any rotation rate (the step is 0.1–0.4°), where a sensor at
+    /// 1200 rpm fills only every other 0.2° column.
+    pub fn coverage(&self) -> f32 {
+        let seen: u32 = self.degrees_seen.iter().map(|w| w.count_ones()).sum();
+        seen as f32 / 360.0
     }
 
     /// The typical azimuth step between successive returns of a ring, rad (the median over
@@ -600,6 +617,40 @@ mod tests {
             }
         }
         pts
+    }
+
+    #[test]
+    fn coverage_is_the_share_of_the_turn_seen_at_any_rotation_rate() {
+        // One ring's returns on a circle 5 m away, `step` degrees apart over `span` degrees.
+        let turn = |step: f32, span: f32| {
+            let n = (span / step).round() as usize;
+            let pts: Vec<ScanPoint> = (0..n)
+                .map(|i| {
+                    let az = (i as f32 * step).to_radians();
+                    ScanPoint {
+                        position: [5.0 * az.cos(), -5.0 * az.sin(), 0.0],
+                        time_ns: i as u64,
+                        reflectivity: 40,
+                        ring: 0,
+                    }
+                })
+                .collect();
+            calibrate(&pts).coverage()
+        };
+        // 600, 1200 and 300 rpm.
+        for step in [0.2, 0.4, 0.1] {
+            assert!(
+                turn(step, 360.0) > 0.99,
+                "step {step}: {}",
+                turn(step, 360.0)
+            );
+            assert!((turn(step, 90.0) - 0.25).abs() < 0.01, "step {step}");
+            assert!(
+                (turn(step, 13.0) - 13.0 / 360.0).abs() < 0.01,
+                "step {step}"
+            );
+        }
+        assert_eq!(calibrate(&[]).coverage(), 0.0);
     }
 
     #[test]

@@ -33,12 +33,15 @@ pub struct Feature {
 }
 
 /// The features of one sweep: what the front end hands the odometry.
-#[derive(Debug, Default, Clone)]
+#[derive(Debug, Clone)]
 pub struct SweepFeatures {
     /// The instant the sweep's pose describes, ns since the epoch.
     pub reference_ns: u64,
     /// Returns in the sweep, before selection.
     pub returns: usize,
+    /// The share of a turn's azimuth the sweep's returns cover (see
+    /// [`RangeImage::coverage`]); 1 where not measured.
+    pub coverage: f32,
     /// Edges (geometric corners and intensity boundaries).
     pub edges: Vec<Feature>,
     /// Planar returns, one per voxel.
@@ -50,11 +53,26 @@ pub struct SweepFeatures {
     pub calibrated: Vec<Feature>,
 }
 
+impl Default for SweepFeatures {
+    fn default() -> Self {
+        Self {
+            reference_ns: 0,
+            returns: 0,
+            coverage: 1.0,
+            edges: Vec::new(),
+            planes: Vec::new(),
+            intensity: Vec::new(),
+            calibrated: Vec::new(),
+        }
+    }
+}
+
 impl SweepFeatures {
-    /// Empties them for the features of `scan`.
-    fn restart(&mut self, scan: &Scan<'_>) {
+    /// Empties them for the features of `scan`, whose returns `image` holds.
+    fn restart(&mut self, scan: &Scan<'_>, image: &RangeImage) {
         self.reference_ns = scan.reference_ns;
         self.returns = scan.points.len();
+        self.coverage = image.coverage();
         self.edges.clear();
         self.planes.clear();
         self.intensity.clear();
@@ -193,7 +211,7 @@ pub(crate) fn features_of(
     features: &SweepFeatures,
     out: &mut SweepFeatures,
 ) {
-    out.restart(scan);
+    out.restart(scan, image);
     let of = |f: &Feature| feature(scan, image, f.point as usize);
     out.edges.extend(features.edges.iter().map(of));
     out.planes.extend(features.planes.iter().map(of));
@@ -461,7 +479,7 @@ impl FeatureSelector {
         config: &FeatureConfig,
         out: &mut SweepFeatures,
     ) {
-        out.restart(scan);
+        out.restart(scan, image);
         let k = config.neighbours.max(1);
         if self.rings.len() != image.rings() {
             self.begin(image.rings());
@@ -543,7 +561,7 @@ impl FeatureSelector {
         from: (usize, usize),
         out: &mut SweepFeatures,
     ) -> (usize, usize) {
-        out.restart(scan);
+        out.restart(scan, image);
         let picked =
             |picks: &[u32], from: usize, keeps: &dyn Fn(usize) -> bool, into: &mut Vec<Feature>| {
                 into.extend(

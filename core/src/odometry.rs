@@ -34,7 +34,9 @@ pub enum TrackingStatus {
     Tracking,
     /// Aligned, but geometry alone leaves a direction unconstrained (intensity may hold it).
     Degenerate,
-    /// Too few correspondences: the prediction is reported and the map is not grown.
+    /// Too few correspondences, or too little of a turn (see
+    /// [`crate::config::SolverConfig::min_coverage`]): the prediction is reported and the map
+    /// is not grown.
     Lost,
 }
 
@@ -250,6 +252,22 @@ impl Odometry {
         self.pending_growth = None;
         self.deskew(features, &self.velocity.clone());
         on_stage(Stage::Deskew);
+        if features.coverage < self.config.solver.min_coverage {
+            // A sliver of a turn: see `SolverConfig::min_coverage`. Before the maps exist it
+            // does not start them; the next whole sweep does.
+            on_stage(Stage::Align);
+            if self.last.is_some() {
+                self.last = Some((time_ns, prediction));
+            }
+            self.sweeps += 1;
+            return OdometryEstimate {
+                time_ns,
+                pose: prediction,
+                velocity: self.velocity,
+                status: TrackingStatus::Lost,
+                alignment: None,
+            };
+        }
         if self.last.is_none() || self.planes.is_empty() {
             on_stage(Stage::Align);
             return self.initialise(features, time_ns, prediction);
@@ -1136,6 +1154,63 @@ mod tests {
         ungated.local_map.update_angle = 0.0;
         let ungated = run(ungated);
         assert!(ungated[5].1 > ungated[2].1, "{ungated:?}");
+    }
+
+    #[test]
+    fn a_sliver_of_a_turn_is_lost_at_the_prediction_and_leaves_the_maps_alone() {
+        // Driving at 1.5 m/s along the room; after six whole sweeps the stream stops 18° into
+        // the seventh (a sensor falling silent, a capture's end), then a whole sweep follows.
+        let speed = 1.5f32;
+        let sweep_at = |k: u64| {
+            let end_ns = 1_000_000_000 + k * 100_000_000;
+            let end_x = -2.0 + speed * 0.1 * k as f32;
+            let points = sweep_in_motion(end_ns, |ray, before_end| {
+                room_from(&Vector3::new(end_x - speed * before_end, 0.0, 0.0), ray)
+            });
+            (end_ns, points)
+        };
+        let run = |config: &OdometryConfig| {
+            let mut rig = Rig::new(config);
+            for k in 0..6u64 {
+                let (end_ns, points) = sweep_at(k);
+                assert_ne!(rig.feed(&points, end_ns).status, TrackingStatus::Lost);
+            }
+            let maps = rig.odometry.map_sizes();
+            let (_, whole) = sweep_at(6);
+            let sliver: Vec<ScanPoint> = whole.iter().copied().take(90 * 16).collect();
+            let end_ns = sliver.last().expect("returns").time_ns;
+            let sliver_estimate = rig.feed(&sliver, end_ns);
+            assert!(
+                (rig.features.coverage - 0.05).abs() < 0.001,
+                "{}",
+                rig.features.coverage
+            );
+            let maps_after = rig.odometry.map_sizes();
+            let (end_ns, points) = sweep_at(7);
+            let next = rig.feed(&points, end_ns);
+            (sliver_estimate, maps == maps_after, next)
+        };
+        let (sliver, maps_kept, next) = run(&OdometryConfig::default());
+        assert_eq!(sliver.status, TrackingStatus::Lost, "{sliver:?}");
+        assert!(sliver.alignment.is_none());
+        assert!(maps_kept);
+        // The prediction at the sliver's last return: where the robot was.
+        let truth_x = |t_ns: u64| f64::from(speed) * (t_ns - 1_000_000_000) as f64 * 1e-9;
+        assert!(
+            (sliver.pose.translation.x - truth_x(sliver.time_ns)).abs() < 0.01,
+            "{sliver:?}"
+        );
+        // The next whole sweep tracks on from there.
+        assert_ne!(next.status, TrackingStatus::Lost, "{next:?}");
+        assert!(
+            (next.pose.translation.x - truth_x(next.time_ns)).abs() < 0.02,
+            "{next:?}"
+        );
+        // Without the rule the sliver is aligned (and grows the maps).
+        let mut ungated = OdometryConfig::default();
+        ungated.solver.min_coverage = 0.0;
+        let (sliver, _, _) = run(&ungated);
+        assert_ne!(sliver.status, TrackingStatus::Lost, "{sliver:?}");
     }
 
     #[test]
