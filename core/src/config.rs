@@ -273,9 +273,9 @@ pub struct SolverConfig {
     /// short leaves (the sensor falling silent, a capture's end), and the few degrees it holds
     /// can slide along a corridor: a 13° sliver at the end of a simulated corridor run (seed 71)
     /// aligned 0.64 m from the truth, where the prediction was 6 mm off. A quarter turn: a
-    /// sensor at a vehicle's corner, its body blocking a quarter or more of the view, still
-    /// clears it with every whole sweep, and a partial 37 % of a turn (yard, seed 42) aligned to
-    /// within a millimetre of the truth's step.
+    /// sensor at a vehicle's corner, its body blocking up to half the view, clears it with every
+    /// whole sweep, and a partial 37 % of a turn (yard, seed 42) aligned to within a millimetre of
+    /// the truth's step.
     pub min_coverage: f32,
     /// The smallest eigenvalue of the plane correspondences' translational information per
     /// correspondence (0–1/3) below which the pose is reported degenerate. Measured on the
