@@ -239,7 +239,6 @@ impl LocalMap {
     pub fn retain_near(&mut self, center: &Vector3<f32>, radius: f32) {
         let c = self.key(center);
         let r = (radius / self.cell).ceil() as i32;
-        let per = self.per_cell;
         let mut kept = 0;
         for slot in 0..self.slots.len() {
             let (k, used) = self.slots[slot];
@@ -252,14 +251,15 @@ impl LocalMap {
             }
             if kept != slot {
                 self.slots[kept] = (k, used);
-                self.storage
-                    .copy_within(slot * 3 * per..(slot + 1) * 3 * per, kept * 3 * per);
+                let (from, to) = (self.block(slot)..self.block(slot + 1), self.block(kept));
+                self.storage.copy_within(from, to);
                 self.index.insert(packed(k), (kept as u32, used));
             }
             kept += 1;
         }
         self.slots.truncate(kept);
-        self.storage.truncate(kept * 3 * per);
+        let end = self.block(kept);
+        self.storage.truncate(end);
     }
 }
 
