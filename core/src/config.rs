@@ -79,12 +79,14 @@ pub struct FeatureConfig {
     /// Planar points are thinned to one per voxel of this size (m).
     pub plane_voxel: f32,
     /// Planar points kept per sweep at most, spread evenly over those the voxels kept (in ring
-    /// order); 0 keeps all. A sweep outdoors keeps over 3,000 after the voxels, and each costs a
-    /// neighbour search and a residual in every trial of the alignment, while the pose has six
-    /// degrees of freedom: on five simulated yard runs (60 and 160 s) a cap of 2,000 took a
-    /// quarter off the alignment's time and moved the mean drift from 0.299 to 0.303 % (the
-    /// runs spread over 0.24–0.37 %); 1,500 gave 0.304 %. Indoor sweeps (about 1,000 in the
-    /// warehouse, 600 in the corridor) stay under it.
+    /// order); 0 keeps all. Stated for the 0.2° azimuth step of a VLP-16 at 600 rpm: a slower
+    /// rotor's sweep, with finer steps, lasts as much longer and keeps proportionally more (twice
+    /// at 300 rpm), a faster one keeps the whole cap. A sweep outdoors keeps over 3,000 after the
+    /// voxels, and each costs a neighbour search and a residual in every trial of the alignment,
+    /// while the pose has six degrees of freedom: on five 60 s simulated yard runs at 600 rpm,
+    /// 1,500 gave a mean drift of 0.266 % against 0.267 % at 2,000 (1,200: 0.271 %, 1,000:
+    /// 0.280 %); at 300 rpm a flat 1,500 moved three yard runs from 0.328 to 0.355 %, hence the
+    /// scaling. Indoor sweeps (about 1,000 in the warehouse, 600 in the corridor) stay under it.
     pub max_planes: usize,
     /// Intensity points (largest σᴵ) kept per sweep for the intensity residual. Past the
     /// strongest gradients the residuals add more noise than constraint: on five simulated
@@ -121,7 +123,7 @@ impl Default for FeatureConfig {
             min_range: 0.8,
             max_range: 90.0,
             plane_voxel: 0.5,
-            max_planes: 2000,
+            max_planes: 1500,
             max_intensity_points: 1000,
             intensity_roughness_threshold: 0.1,
             intensity_map_spacing: 0.05,

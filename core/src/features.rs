@@ -534,7 +534,8 @@ impl FeatureSelector {
             .extend(self.picks.planes.iter().map(|&i| sweep.feature(i as usize)));
         self.picks.keep_strongest_intensity(&sweep, out);
         let picked = out.planes.len();
-        PlaneThinning::settled(config.max_planes, self.last_planes, picked).apply(&mut out.planes);
+        PlaneThinning::settled(plane_cap(config, plan.step), self.last_planes, picked)
+            .apply(&mut out.planes);
         self.last_planes = picked;
         // In firing order, as the intensity map takes them.
         if scan.rings > 0 {
@@ -576,7 +577,8 @@ impl FeatureSelector {
         picked(&self.picks.edges, from.0, &|_| true, &mut out.edges);
         // Those the planned thinning drops are left out: most sweeps keep it (see
         // `PlaneThinning::settled`).
-        let thinning = PlaneThinning::planned(config.max_planes, self.last_planes);
+        let step = self.plan.as_ref().and_then(|plan| plan.step);
+        let thinning = PlaneThinning::planned(plane_cap(config, step), self.last_planes);
         picked(
             &self.picks.planes,
             from.1,
@@ -845,20 +847,30 @@ fn noise_floor(config: &FeatureConfig, k: usize, r: f32) -> f32 {
 /// The azimuth step the configured thresholds are stated for: 0.2°, a VLP-16 at 600 rpm.
 const REFERENCE_STEP_RAD: f32 = 0.2 * std::f32::consts::PI / 180.0;
 
+/// The cap on a sweep's planar points for azimuth step `step` (rad; the reference step if
+/// unknown): `max_planes` at the reference step and above, proportionally more for the finer
+/// steps of a slower rotor, whose sweep lasts as much longer (see [`FeatureConfig::max_planes`]).
+fn plane_cap(config: &FeatureConfig, step: Option<f32>) -> usize {
+    let finer = step.map_or(1.0, |step| REFERENCE_STEP_RAD / step);
+    (config.max_planes as f32 * finer.clamp(1.0, 4.0)).round() as usize
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::scan::ScanPoint;
 
     /// One ring sweeping two walls meeting at a corner (x = 5 and y = 5), with a painted stripe
-    /// on the first wall.
-    fn corner_scan() -> Vec<ScanPoint> {
+    /// on the first wall, returns `step` degrees apart (0.2° at 600 rpm).
+    fn corner_scan_at(step: f32) -> Vec<ScanPoint> {
         let mut pts = Vec::new();
+        let columns = (90.0 / step).round() as usize;
+        let column_ns = (55_296.0 * step / 0.2).round() as u64;
         for ring in 0..2u8 {
             let el = (f32::from(ring) * 2.0 - 1.0).to_radians();
-            for c in 0..450 {
+            for c in 0..columns {
                 // Azimuth from 0° (+x) to −90° (+y) clockwise, i.e. counter-clockwise here.
-                let az = -(c as f32) * 0.2f32.to_radians();
+                let az = -(c as f32) * step.to_radians();
                 let dir = [el.cos() * az.cos(), -el.cos() * az.sin(), el.sin()];
                 let t_x = 5.0 / dir[0];
                 let t_y = 5.0 / dir[1];
@@ -867,7 +879,7 @@ mod tests {
                 let on_stripe = p[1] > 1.0 && p[1] < 1.3 && t == t_x;
                 pts.push(ScanPoint {
                     position: p,
-                    time_ns: c as u64 * 55_296,
+                    time_ns: c as u64 * column_ns,
                     reflectivity: if on_stripe { 90 } else { 20 },
                     ring,
                 });
@@ -878,11 +890,16 @@ mod tests {
 
     /// The corner scan through calibration and selection with `config`.
     fn corner_features(config: FeatureConfig) -> SweepFeatures {
-        let pts = corner_scan();
+        corner_features_at(config, 0.2)
+    }
+
+    /// [`corner_features`] of the corner seen `step` degrees apart.
+    fn corner_features_at(config: FeatureConfig, step: f32) -> SweepFeatures {
+        let pts = corner_scan_at(step);
         let scan = Scan {
             points: &pts,
             rings: 2,
-            reference_ns: 449 * 55_296,
+            reference_ns: pts.last().map_or(0, |p| p.time_ns),
         };
         let mut f = SweepFeatures::default();
         let odometry = crate::config::OdometryConfig {
@@ -977,6 +994,26 @@ mod tests {
         assert_eq!(roomy.planes, all.planes);
         assert_eq!(capped.edges, all.edges);
         assert_eq!(capped.intensity, all.intensity);
+    }
+
+    #[test]
+    fn a_slower_rotors_finer_steps_keep_proportionally_more_planes() {
+        let with_cap = |step: f32, max_planes: usize| {
+            let config = FeatureConfig {
+                max_planes,
+                ..FeatureConfig::default()
+            };
+            corner_features_at(config, step).planes.len()
+        };
+        // 300 rpm: steps of 0.1°, a sweep twice as long, twice the cap.
+        let n = with_cap(0.1, 0);
+        assert!(n >= 40, "{n} planes");
+        let kept = with_cap(0.1, n / 4);
+        assert!(kept.abs_diff(2 * (n / 4)) <= 1, "{kept} of {n}");
+        // 1200 rpm: steps of 0.4°; the cap stays whole.
+        let n = with_cap(0.4, 0);
+        assert!(n >= 20, "{n} planes");
+        assert_eq!(with_cap(0.4, n / 4), n / 4);
     }
 
     #[test]
