@@ -91,8 +91,10 @@ pub struct FeatureConfig {
     /// Intensity points (largest σᴵ) kept per sweep for the intensity residual. Past the
     /// strongest gradients the residuals add more noise than constraint: on five simulated
     /// warehouse runs (60 s, seeds 3, 5, 11, 17 and 23), the scene whose sweeps fill the cap, the
-    /// mean drift was 0.248 % at 1,500, 0.240 % at 1,000 (each run equal or better, the
-    /// alignment 12–18 % faster) and 0.237 % at 700. Yard and corridor sweeps hold about 500.
+    /// mean drift was 0.248 % at 1,500, 0.240 % at 1,000 and 0.237 % at 700; on fifteen other
+    /// 60 s runs (five per scenario) 0.269 % at 1,000 and 0.267 % at 700, each scenario's mean
+    /// equal or better, the warehouse's whole sweep 5 % faster. Yard and corridor sweeps hold
+    /// about 500.
     pub max_intensity_points: usize,
     /// σᴵ below which a point carries no intensity gradient worth matching: a mean reflectivity
     /// step of 10 units to its neighbours, above what calibrated reflectivity's noise alone makes
@@ -124,7 +126,7 @@ impl Default for FeatureConfig {
             max_range: 90.0,
             plane_voxel: 0.5,
             max_planes: 1500,
-            max_intensity_points: 1000,
+            max_intensity_points: 700,
             intensity_roughness_threshold: 0.1,
             intensity_map_spacing: 0.05,
         }
