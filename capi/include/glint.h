@@ -67,7 +67,8 @@ extern "C" {
 #define GLINT_STATUS_INITIALISING 0x01u /* starting up, no local map yet: do not steer by it */
 #define GLINT_STATUS_TRACKING 0x02u     /* scan matching converged on this sweep */
 #define GLINT_STATUS_DEGENERATE 0x04u   /* a direction is poorly constrained: see covariance */
-#define GLINT_STATUS_LOST 0x08u         /* tracking lost; the pose is the last good one */
+#define GLINT_STATUS_LOST 0x08u         /* tracking lost; pose not measured: the last good one
+                                           or its constant-velocity prediction */
 #define GLINT_STATUS_LOOP_CLOSED 0x10u  /* map corrected; this map pose may jump */
 #define GLINT_STATUS_PREDICTED 0x20u    /* extrapolated, not measured */
 #define GLINT_STATUS_SENSOR_SILENT 0x40u /* no packets from the sensor recently */

@@ -37,7 +37,9 @@ impl StatusFlags {
     /// Bit 2: the scene constrains some direction poorly (a long corridor); the covariance
     /// says which.
     pub const DEGENERATE: Self = Self(1 << 2);
-    /// Bit 3: tracking is lost; the pose is the last good one, not the robot's current pose.
+    /// Bit 3: tracking is lost; the pose was not measured: the last good one, or its
+    /// constant-velocity prediction to this sweep's time (a sweep that did not match, or too
+    /// short a part of a turn to align). Not the robot's measured pose: do not steer by it.
     pub const LOST: Self = Self(1 << 3);
     /// Bit 4: the `map` pose jumped: a loop closure corrected the map frame, or (localising in
     /// a saved map) this is the first verified pose after a (re)localisation. Set on the first
