@@ -63,7 +63,10 @@ def main():
     ap.add_argument("--runs", type=int, default=20)
     ap.add_argument("--seconds", type=float, default=25.0, help="length of each localisation run")
     ap.add_argument("--out", default=os.path.join(REPO, "target", "localisation-bench"))
+    ap.add_argument("--config", help="a daemon configuration for the mapping and localisation "
+                    "replays (`glintd replay --config`)")
     args = ap.parse_args()
+    config = ["--config", args.config] if args.config else []
     glintd = args.glintd
     if not glintd:
         sh(["cargo", "build", "--release", "-p", "glintd"], cwd=REPO)
@@ -76,7 +79,7 @@ def main():
         sh([glintd, "sim", "warehouse", "--seed", str(SEED), "--path-seed", str(MAP_PATH_SEED),
             "--seconds", "150", "--out", mapping])
     sh([glintd, "replay", os.path.join(mapping, "scan.pcap"), "--no-publish",
-        "--save-map", d("site.glintmap"), "--trajectory", d("mapping.tum")])
+        "--save-map", d("site.glintmap"), "--trajectory", d("mapping.tum")] + config)
     info = sh([glintd, "map", "info", d("site.glintmap")])
     print(info.strip())
     mapping_gt = os.path.join(mapping, "groundtruth_dense.tum")
@@ -114,7 +117,7 @@ def main():
             print(f"run {i}: {' '.join(flags)}: not simulated ({e.stderr.strip()})")
             continue
         text = sh([glintd, "replay", os.path.join(run, "scan.pcap"), "--no-publish",
-                   "--localise", d("site.glintmap"), "--trajectory", run + ".tum"])
+                   "--localise", d("site.glintmap"), "--trajectory", run + ".tum"] + config)
         relocs = [float(x) for x in re.findall(r"relocalised at t = [\d.]+ s after ([\d.]+) s", text)]
         verified = re.search(r"localisation: (\d+) of (\d+) sweeps", text)
         gt = os.path.join(run, "groundtruth_dense.tum")
