@@ -860,7 +860,7 @@ mod tests {
     use super::*;
     use crate::scan::ScanPoint;
 
-    /// One ring sweeping two walls meeting at a corner (x = 5 and y = 5), with a painted stripe
+    /// Two rings sweeping two walls meeting at a corner (x = 5 and y = 5), with a painted stripe
     /// on the first wall, returns `step` degrees apart (0.2° at 600 rpm).
     fn corner_scan_at(step: f32) -> Vec<ScanPoint> {
         let mut pts = Vec::new();
