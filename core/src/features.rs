@@ -232,11 +232,15 @@ fn feature(scan: &Scan<'_>, image: &RangeImage, i: usize) -> Feature {
 
 /// The sweep's thresholds: σᴳ of a corner grows with the azimuth step between returns (0.2° at
 /// 600 rpm, 0.4° at 1200 rpm), so they follow the sweep's own step; the ranking is unchanged.
+/// So does the cap on planar points: a slower rotor's finer steps make a sweep that lasts as
+/// much longer, which keeps proportionally more (see [`FeatureConfig::max_planes`]).
 struct Thresholds {
     edge: f32,
     plane: f32,
     /// 1 / the plane voxel's size, 1/m.
     per_voxel: f32,
+    /// The sweep's cap on planar points: `max_planes` at the reference step and coarser.
+    max_planes: usize,
 }
 
 impl Thresholds {
@@ -247,6 +251,7 @@ impl Thresholds {
             edge: config.edge_threshold * step_ratio.clamp(0.5, 4.0),
             plane: config.plane_threshold * step_ratio.clamp(0.5, 4.0),
             per_voxel: 1.0 / config.plane_voxel,
+            max_planes: (config.max_planes as f32 / step_ratio.clamp(0.25, 1.0)).round() as usize,
         }
     }
 }
@@ -534,8 +539,7 @@ impl FeatureSelector {
             .extend(self.picks.planes.iter().map(|&i| sweep.feature(i as usize)));
         self.picks.keep_strongest_intensity(&sweep, out);
         let picked = out.planes.len();
-        PlaneThinning::settled(plane_cap(config, plan.step), self.last_planes, picked)
-            .apply(&mut out.planes);
+        PlaneThinning::settled(limits.max_planes, self.last_planes, picked).apply(&mut out.planes);
         self.last_planes = picked;
         // In firing order, as the intensity map takes them.
         if scan.rings > 0 {
@@ -577,8 +581,8 @@ impl FeatureSelector {
         picked(&self.picks.edges, from.0, &|_| true, &mut out.edges);
         // Those the planned thinning drops are left out: most sweeps keep it (see
         // `PlaneThinning::settled`).
-        let step = self.plan.as_ref().and_then(|plan| plan.step);
-        let thinning = PlaneThinning::planned(plane_cap(config, step), self.last_planes);
+        let limits = Thresholds::new(config, self.plan.as_ref().and_then(|plan| plan.step));
+        let thinning = PlaneThinning::planned(limits.max_planes, self.last_planes);
         picked(
             &self.picks.planes,
             from.1,
@@ -846,14 +850,6 @@ fn noise_floor(config: &FeatureConfig, k: usize, r: f32) -> f32 {
 
 /// The azimuth step the configured thresholds are stated for: 0.2°, a VLP-16 at 600 rpm.
 const REFERENCE_STEP_RAD: f32 = 0.2 * std::f32::consts::PI / 180.0;
-
-/// The cap on a sweep's planar points for azimuth step `step` (rad; the reference step if
-/// unknown): `max_planes` at the reference step and above, proportionally more for the finer
-/// steps of a slower rotor, whose sweep lasts as much longer (see [`FeatureConfig::max_planes`]).
-fn plane_cap(config: &FeatureConfig, step: Option<f32>) -> usize {
-    let finer = step.map_or(1.0, |step| REFERENCE_STEP_RAD / step);
-    (config.max_planes as f32 * finer.clamp(1.0, 4.0)).round() as usize
-}
 
 #[cfg(test)]
 mod tests {
