@@ -824,10 +824,10 @@ impl DeskewTransforms {
         let wanted = bucket.unsigned_abs() as usize;
         while table.len() <= wanted {
             let b = table.len();
-            let exact = |b: usize| exp(&(self.twist * (sign * b as f64 * DESKEW_BUCKET_S)));
-            let next = match table.get(b.wrapping_sub(1)) {
-                Some(before) if b % DESKEW_EXACT_EVERY != 0 && b > 1 => before * table[1],
-                _ => exact(b),
+            let next = if b == 1 || b % DESKEW_EXACT_EVERY == 0 {
+                exp(&(self.twist * (sign * b as f64 * DESKEW_BUCKET_S)))
+            } else {
+                table[b - 1] * table[1]
             };
             table.push(next);
         }
